@@ -1,0 +1,35 @@
+# `make demo`, `make test`, `make bench`: each creates .venv and installs endopipe when missing.
+VENV ?= .venv
+PY := $(VENV)/bin/python
+# The CPU build of torch comes first: a bare `torch` requirement would pull multi-GB CUDA wheels.
+# GPU users: make TORCH_SPEC='torch' (or the build for their CUDA) ...
+TORCH_SPEC ?= torch==2.13.0
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test bench lint format clean-venv
+
+$(STAMP): pyproject.toml
+	bash scripts/system-deps.sh
+	test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q "$(TORCH_SPEC)"
+	$(PY) -m pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/endopipe demo
+
+test: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/pytest
+
+bench: $(STAMP)
+	$(VENV)/bin/endopipe bench
+
+format: $(STAMP)
+	$(VENV)/bin/ruff check --fix .
+	$(VENV)/bin/ruff format .
+
+clean-venv:
+	rm -rf $(VENV)

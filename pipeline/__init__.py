@@ -1,0 +1,1 @@
+"""endopipe's engine: stages, configs, caches and executors. Knows nothing of endoscopy."""

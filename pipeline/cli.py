@@ -1,0 +1,307 @@
+"""The composition root: wires the stages into the DAG and exposes the commands.
+
+Every failure the user can act on ends as one line on stderr and a non-zero exit code.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Annotated, Optional
+
+import stages  # noqa: F401  (imports cv2 before anything can import pycolmap)
+
+import click
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from pipeline.config import default_yaml, describe_fields, load_config
+from pipeline.errors import EndopipeError
+from pipeline.runner import Pipeline, RunRecord, ensure_writable
+from pipeline.stage import CaseInfo, Stage, write_json
+
+console = Console(stderr=True)
+out = Console()
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="endopipe: monocular endoscopic video -> poses, depth, mesh and an evaluation report.",
+)
+DEFAULT_WORKDIR = Path("workdir")
+
+
+def all_stages() -> list[type[Stage]]:
+    """The DAG in order. Imported lazily so `endopipe --help` stays fast."""
+    from stages.ingest import Ingest
+
+    return [Ingest]
+
+
+def build_pipeline() -> Pipeline:
+    return Pipeline(all_stages())
+
+
+def case_name_for(input_path: Path) -> str:
+    p = input_path.resolve()
+    if p.is_file() and p.name == "video.mp4" and (p.parent / "intrinsics.json").exists():
+        return p.parent.name
+    if p.is_dir() and p.name == "frames":
+        return p.parent.name
+    return p.stem if p.is_file() else p.name
+
+
+def prepare_case(
+    input_path: Path, workdir: Path, name: str | None, intrinsics: Path | None
+) -> Path:
+    """Check the input, then create the case folder and its case.json (only then)."""
+    from stages.io.sources import open_input
+
+    source = open_input(input_path, intrinsics)
+    digest = source.digest()
+    ensure_writable(workdir)
+    case_dir = workdir / (name or case_name_for(input_path))
+    case_dir.mkdir(parents=True, exist_ok=True)
+    info = CaseInfo(
+        name=case_dir.name,
+        input=str(Path(input_path).resolve()),
+        kind=source.kind,
+        input_digest=digest,
+        intrinsics_file=str(intrinsics.resolve()) if intrinsics else None,
+        gt_dir=str(source.gt_dir) if source.gt_dir else None,
+    )
+    case_json = case_dir / "case.json"
+    if not case_json.exists() or CaseInfo.load(case_dir) != info:
+        tmp = case_dir / ".case.json.tmp"
+        write_json(tmp, info.model_dump())
+        tmp.replace(case_json)
+    return case_dir
+
+
+def resolve_case(case: str, workdir: Path) -> Path:
+    for candidate in (Path(case), workdir / case):
+        if (candidate / "case.json").is_file():
+            return candidate
+    raise EndopipeError(f"no endopipe case at {case} (nor {workdir / case}); run `endopipe run INPUT` first")
+
+
+def print_record(record: RunRecord, case_dir: Path) -> None:
+    ran = [s.stage for s in record.stages if s.status == "ran"]
+    cached = [s.stage for s in record.stages if s.status == "cached"]
+    console.print(
+        f"[bold]{record.case}[/bold]: ran {len(ran)} stage(s), {len(cached)} cached, "
+        f"{record.wall_s:.1f} s -> {case_dir}"
+    )
+
+
+@app.command()
+def run(
+    input: Annotated[Path, typer.Argument(help="Video file, image folder or endopipe case folder.")],
+    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    name: Annotated[Optional[str], typer.Option(help="Case name (default: from the input).")] = None,
+    config: Annotated[
+        Optional[list[str]], typer.Option("--config", help="Preset name or YAML file; repeatable.")
+    ] = None,
+    set_: Annotated[
+        Optional[list[str]], typer.Option("--set", help="stage.key=value; repeatable.")
+    ] = None,
+    intrinsics: Annotated[
+        Optional[Path], typer.Option(help="intrinsics.json for the input's frames.")
+    ] = None,
+    from_stage: Annotated[Optional[str], typer.Option("--from", help="Re-run from this stage.")] = None,
+    until: Annotated[Optional[str], typer.Option(help="Stop after this stage.")] = None,
+    force: Annotated[bool, typer.Option(help="Ignore the cache.")] = False,
+    dry_run: Annotated[bool, typer.Option(help="Show what would run, run nothing.")] = False,
+    wait: Annotated[bool, typer.Option(help="Wait for another run on the same case.")] = False,
+    quiet: Annotated[bool, typer.Option(help="No progress output.")] = False,
+) -> None:
+    """Run the pipeline on INPUT: what is stale runs, what is fresh is reused."""
+    pipe = build_pipeline()
+    for stage in (from_stage, until):
+        if stage is not None:
+            pipe.index(stage)
+    configs = load_config(pipe.stages, config or [], set_ or [])
+    case_dir = prepare_case(input, workdir, name, intrinsics)
+    record = pipe.run(
+        case_dir,
+        configs,
+        until=until,
+        from_stage=from_stage,
+        force=force,
+        dry_run=dry_run,
+        wait_for_lock=wait,
+        console=console,
+        quiet=quiet,
+    )
+    if dry_run:
+        for s in record.stages:
+            out.print(f"{s.stage:<12} {'cached' if s.status == 'cached' else 'would run'}  ({s.reason})")
+        return
+    print_record(record, case_dir)
+
+
+@app.command()
+def status(
+    case: Annotated[str, typer.Argument(help="Case folder or name under --workdir.")],
+    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    config: Annotated[Optional[list[str]], typer.Option("--config")] = None,
+    set_: Annotated[Optional[list[str]], typer.Option("--set")] = None,
+) -> None:
+    """Each stage of CASE: fresh, stale (and why) or missing, for the given config."""
+    pipe = build_pipeline()
+    case_dir = resolve_case(case, workdir)
+    configs = load_config(pipe.stages, config or [], set_ or [])
+    table = Table(title=f"{case_dir.name}")
+    for col in ("stage", "state", "why", "folder"):
+        table.add_column(col)
+    for p in pipe.status(case_dir, configs):
+        state = "fresh" if p.fresh else ("missing" if p.reason == "missing" else "stale")
+        colour = {"fresh": "green", "stale": "yellow", "missing": "red"}[state]
+        table.add_row(p.stage, f"[{colour}]{state}[/{colour}]", p.reason, p.folder)
+    out.print(table)
+
+
+@app.command()
+def clean(
+    case: Annotated[str, typer.Argument(help="Case folder or name under --workdir.")],
+    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    stage: Annotated[Optional[str], typer.Option(help="Remove this stage and its downstream only.")] = None,
+) -> None:
+    """Remove a case's stage outputs (all, or one stage and what depends on it)."""
+    pipe = build_pipeline()
+    case_dir = resolve_case(case, workdir)
+    if stage is not None:
+        pipe.index(stage)
+    removed = pipe.clean(case_dir, stage)
+    out.print(f"removed {len(removed)} folder(s): {', '.join(removed) or 'none'}")
+
+
+@app.command("stages")
+def list_stages(
+    yaml_: Annotated[bool, typer.Option("--yaml", help="Print configs/default.yaml.")] = False,
+) -> None:
+    """Every stage with its config fields, types, defaults and help."""
+    pipe = build_pipeline()
+    if yaml_:
+        out.print(default_yaml(pipe.stages), markup=False, highlight=False, soft_wrap=True)
+        return
+    for stage in pipe.stages:
+        needs = ", ".join(stage.needs) or "input"
+        out.print(f"[bold]{pipe.folder_name(stage.name)}[/bold]  needs: {needs}  v{stage.version}")
+        out.print(f"  {stage.describe()}")
+        table = Table(show_header=True, box=None, padding=(0, 2))
+        for col in ("key", "type", "default", "help"):
+            table.add_column(col)
+        for key, type_name, default, help_text in describe_fields(stage.Config):
+            table.add_row(f"{stage.name}.{key}", type_name, default, help_text)
+        out.print(table)
+
+
+@app.command()
+def synth(
+    out_dir: Annotated[Path, typer.Argument(metavar="OUT", help="Case folder to write.")],
+    seed: int = 0,
+    frames: int = 60,
+    width: int = 320,
+    height: int = 256,
+    shape: Annotated[str, typer.Option(help="colon | cavity")] = "colon",
+) -> None:
+    """Write a synthetic lumen case with exact ground truth (depth, poses, mesh, speculars)."""
+    from pydantic import ValidationError
+
+    from stages.synth import SynthConfig
+
+    try:
+        cfg = SynthConfig(seed=seed, frames=frames, width=width, height=height, shape=shape)
+    except ValidationError as e:
+        err = e.errors()[0]
+        raise EndopipeError(f"synth {'.'.join(map(str, err['loc']))}: {err['msg']}") from None
+    ensure_writable(out_dir.parent if out_dir.parent != Path("") else Path("."))
+    summary = write_synth(out_dir, cfg)
+    out.print(
+        f"wrote {summary.frames} frames ({shape}, path {summary.path_length_mm:.1f} mm, "
+        f"mean radius {summary.mean_radius_mm:.1f} mm) to {out_dir} in {summary.seconds:.1f} s"
+    )
+
+
+def write_synth(out_dir: Path, cfg) -> object:
+    from rich.progress import Progress
+
+    from stages.synth import generate_case
+
+    with Progress(console=console, transient=True) as bar:
+        task = bar.add_task("synth", total=cfg.frames)
+        return generate_case(out_dir, cfg, progress=lambda i, n: bar.update(task, completed=i + 1))
+
+
+@app.command()
+def demo(
+    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    frames: int = 24,
+) -> None:
+    """Synthesise a small colon case and run every stage on it."""
+    from stages.synth import SynthConfig
+
+    ensure_writable(workdir)
+    case_src = workdir / "demo_input"
+    cfg = SynthConfig(seed=0, frames=frames, width=320, height=256, shape="colon")
+    t0 = time.perf_counter()
+    if not (case_src / "intrinsics.json").exists():
+        console.print(f"[bold]synthesising[/bold] a {frames}-frame colon into {case_src}")
+        write_synth(case_src, cfg)
+    pipe = build_pipeline()
+    configs = load_config(pipe.stages, ["demo"] if _has_preset("demo") else [], [])
+    case_dir = prepare_case(case_src, workdir, "demo", None)
+    record = pipe.run(case_dir, configs, console=console)
+    print_record(record, case_dir)
+    out.print(f"demo finished in {time.perf_counter() - t0:.1f} s; outputs:")
+    for stage in pipe.stages:
+        out.print(f"  {stage.name:<11} {case_dir / pipe.folder_name(stage.name)}")
+
+
+def _has_preset(name: str) -> bool:
+    from pipeline.config import CONFIG_DIR
+
+    return (CONFIG_DIR / f"{name}.yaml").is_file()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: one clear line and an exit code for every failure, never a traceback."""
+    try:
+        app(args=argv, standalone_mode=False)
+        return 0
+    except EndopipeError as e:
+        console.print(f"[bold red]error:[/bold red] {e}", highlight=False, soft_wrap=True)
+        return e.exit_code
+    except click.exceptions.Exit as e:
+        return e.exit_code
+    except click.exceptions.Abort:
+        console.print("[bold red]aborted[/bold red]")
+        return 130
+    except click.ClickException as e:
+        console.print(f"[bold red]error:[/bold red] {e.format_message()}", soft_wrap=True)
+        return e.exit_code
+    except KeyboardInterrupt:
+        console.print("[bold red]interrupted[/bold red]; re-run the same command to resume")
+        return 130
+    except Exception as e:  # an endopipe bug: one line here, the traceback in a log file
+        log = Path.home() / ".cache" / "endopipe" / "last_error.log"
+        try:
+            log.parent.mkdir(parents=True, exist_ok=True)
+            log.write_text(traceback.format_exc())
+            where = f"; traceback in {log}"
+        except OSError:
+            where = ""
+        console.print(
+            f"[bold red]internal error:[/bold red] {type(e).__name__}: {e}{where}",
+            highlight=False,
+            soft_wrap=True,
+        )
+        return 1
+
+
+def entry() -> None:
+    sys.exit(main())
+

@@ -1,0 +1,34 @@
+"""User-facing errors: one line naming the problem and what to do, never a traceback."""
+
+from __future__ import annotations
+
+
+class EndopipeError(Exception):
+    """An error the user can act on. `str(err)` is the one line the CLI prints."""
+
+    exit_code = 2
+
+    def __init__(self, message: str, exit_code: int | None = None) -> None:
+        super().__init__(message)
+        if exit_code is not None:
+            self.exit_code = exit_code
+
+
+class InputError(EndopipeError):
+    """The input (video, folder, intrinsics file) cannot be used."""
+
+
+class ConfigError(EndopipeError):
+    """A config file or --set value is wrong."""
+
+
+class StageFailed(EndopipeError):
+    """A stage ran but its result did not pass a quality gate."""
+
+    exit_code = 3
+
+
+class CaseLocked(EndopipeError):
+    """Another endopipe process is working on the same case."""
+
+    exit_code = 4

@@ -1,0 +1,384 @@
+"""Resolves the stage DAG for a case, decides run / skip / resume, holds the case lock."""
+
+from __future__ import annotations
+
+import datetime as dt
+import importlib.metadata
+import os
+import platform
+import shutil
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Literal
+
+import psutil
+from filelock import FileLock, Timeout
+from pydantic import BaseModel
+from rich.console import Console
+
+from pipeline.cache import (
+    Manifest,
+    freshness,
+    list_files,
+    publish,
+    stage_key,
+    stale_temps,
+    temp_dir_for,
+)
+from pipeline.errors import CaseLocked, EndopipeError
+from pipeline.stage import CaseInfo, Stage, StageConfig, StageContext, write_json
+
+TRACKED_PACKAGES = (
+    "endopipe",
+    "torch",
+    "numpy",
+    "pycolmap",
+    "opencv-python-headless",
+    "av",
+    "kornia",
+    "open3d",
+    "trimesh",
+    "pymeshlab",
+    "scikit-image",
+    "scipy",
+    "pydantic",
+)
+
+
+class PlannedStage(BaseModel):
+    stage: str
+    folder: str
+    key: str
+    fresh: bool
+    reason: str
+    action: Literal["run", "cached"]
+
+
+class StageRecord(BaseModel):
+    stage: str
+    status: Literal["ran", "cached", "failed"]
+    reason: str
+    wall_s: float = 0.0
+    peak_rss_mb: float = 0.0
+    summary: dict = {}
+
+
+class RunRecord(BaseModel):
+    case: str
+    input: str
+    started: str
+    finished: str | None = None
+    wall_s: float = 0.0
+    ok: bool = False
+    error: str | None = None
+    host: str = platform.node()
+    python: str = platform.python_version()
+    packages: dict[str, str] = {}
+    stages: list[StageRecord] = []
+
+
+def package_versions() -> dict[str, str]:
+    out = {}
+    for name in TRACKED_PACKAGES:
+        try:
+            out[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            continue
+    return out
+
+
+class PeakMemory:
+    """Samples this process's resident memory in a thread: the peak while a stage runs."""
+
+    def __init__(self, interval_s: float = 0.05) -> None:
+        self.interval_s = interval_s
+        self.peak = 0
+        self._stop = threading.Event()
+        self._proc = psutil.Process()
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            self.peak = max(self.peak, self._proc.memory_info().rss)
+            self._stop.wait(self.interval_s)
+
+    def __enter__(self) -> PeakMemory:
+        self.peak = self._proc.memory_info().rss
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+        self.peak = max(self.peak, self._proc.memory_info().rss)
+
+    @property
+    def peak_mb(self) -> float:
+        return self.peak / 2**20
+
+
+class Pipeline:
+    """An ordered set of stages; the order is a topological order of `needs`."""
+
+    def __init__(self, stages: Sequence[type[Stage]]) -> None:
+        names = [s.name for s in stages]
+        for s in stages:
+            for need in s.needs:
+                if need not in names[: names.index(s.name)]:
+                    raise ValueError(f"stage {s.name} needs {need}, which must come before it")
+        self.stages = list(stages)
+        self.by_name = {s.name: s for s in stages}
+
+    def folder_name(self, name: str) -> str:
+        return f"{self.index(name) + 1:02d}_{name}"
+
+    def index(self, name: str) -> int:
+        if name not in self.by_name:
+            raise EndopipeError(f"unknown stage '{name}'; stages: {', '.join(self.by_name)}")
+        return [s.name for s in self.stages].index(name)
+
+    def downstream(self, name: str) -> set[str]:
+        out = {name}
+        for s in self.stages:
+            if any(n in out for n in s.needs):
+                out.add(s.name)
+        return out
+
+    def ancestors(self, name: str) -> set[str]:
+        out = {name}
+        for s in reversed(self.stages):
+            if s.name in out:
+                out.update(s.needs)
+        return out
+
+    def selection(self, until: str | None) -> list[type[Stage]]:
+        if until is None:
+            return self.stages
+        keep = self.ancestors(until)
+        return [s for s in self.stages if s.name in keep]
+
+    def plan(
+        self,
+        case_dir: Path,
+        case: CaseInfo,
+        configs: dict[str, StageConfig],
+        until: str | None = None,
+        from_stage: str | None = None,
+        force: bool = False,
+    ) -> list[PlannedStage]:
+        forced = set(self.by_name) if force else set()
+        if from_stage is not None:
+            forced |= self.downstream(from_stage) if from_stage in self.by_name else set()
+            self.index(from_stage)
+        keys: dict[str, str] = {}
+        dirty: set[str] = set()
+        plan = []
+        for stage in self.selection(until):
+            cfg = configs[stage.name].model_dump(mode="json")
+            upstream = {n: keys[n] for n in stage.needs}
+            key = stage_key(
+                stage.name, stage.version, cfg, upstream, None if stage.needs else case.input_digest
+            )
+            keys[stage.name] = key
+            folder = case_dir / self.folder_name(stage.name)
+            fresh, reason = freshness(folder, key)
+            if stage.name in forced:
+                fresh, reason = False, "forced" if force else f"--from {from_stage}"
+            elif fresh and any(n in dirty for n in stage.needs):
+                fresh, reason = False, "upstream re-runs"
+            if not fresh:
+                dirty.add(stage.name)
+            plan.append(
+                PlannedStage(
+                    stage=stage.name,
+                    folder=folder.name,
+                    key=key,
+                    fresh=fresh,
+                    reason=reason,
+                    action="cached" if fresh else "run",
+                )
+            )
+        return plan
+
+    def run(
+        self,
+        case_dir: Path,
+        configs: dict[str, StageConfig],
+        *,
+        until: str | None = None,
+        from_stage: str | None = None,
+        force: bool = False,
+        dry_run: bool = False,
+        wait_for_lock: bool = False,
+        console: Console | None = None,
+        quiet: bool = False,
+    ) -> RunRecord:
+        console = console or Console(stderr=True)
+        case = CaseInfo.load(case_dir)
+        lock = FileLock(str(case_dir / ".lock"))
+        try:
+            lock.acquire(timeout=-1 if wait_for_lock else 0)
+        except Timeout:
+            raise CaseLocked(
+                f"case {case.name} is being processed by another endopipe run; "
+                "wait for it to finish, or pass --wait to queue behind it"
+            ) from None
+        try:
+            plan = self.plan(case_dir, case, configs, until, from_stage, force)
+            if dry_run:
+                return RunRecord(
+                    case=case.name,
+                    input=case.input,
+                    started=_now(),
+                    ok=True,
+                    stages=[
+                        StageRecord(stage=p.stage, status="cached" if p.fresh else "ran", reason=p.reason)
+                        for p in plan
+                    ],
+                )
+            return self._execute(case_dir, case, configs, plan, console, quiet)
+        finally:
+            lock.release()
+
+    def _execute(
+        self,
+        case_dir: Path,
+        case: CaseInfo,
+        configs: dict[str, StageConfig],
+        plan: list[PlannedStage],
+        console: Console,
+        quiet: bool,
+    ) -> RunRecord:
+        record = RunRecord(
+            case=case.name, input=case.input, started=_now(), packages=package_versions()
+        )
+        t_run = time.perf_counter()
+        keys = {p.stage: p.key for p in plan}
+        try:
+            for p in plan:
+                stage_cls = self.by_name[p.stage]
+                if p.fresh:
+                    if not quiet:
+                        console.print(f"[dim]· {p.stage:<11} cached[/dim]")
+                    record.stages.append(StageRecord(stage=p.stage, status="cached", reason="fresh"))
+                    continue
+                if not quiet:
+                    console.print(f"[bold cyan]▶ {p.stage:<11}[/bold cyan] running ({p.reason})")
+                rec = self._run_stage(case_dir, case, stage_cls, configs, p, keys, console, quiet)
+                record.stages.append(rec)
+                if not quiet:
+                    console.print(
+                        f"[green]✓ {p.stage:<11}[/green] {rec.wall_s:.1f} s, "
+                        f"peak {rec.peak_rss_mb:.0f} MB"
+                    )
+            record.ok = True
+        except BaseException as e:
+            failed = next((p.stage for p in plan if p.stage not in {r.stage for r in record.stages}), None)
+            if failed is not None:
+                reason = str(e).splitlines()[0] if str(e) else type(e).__name__
+                record.stages.append(StageRecord(stage=failed, status="failed", reason=reason))
+            record.error = f"{type(e).__name__}: {e}"
+            raise
+        finally:
+            record.finished = _now()
+            record.wall_s = time.perf_counter() - t_run
+            runs = case_dir / "runs"
+            runs.mkdir(exist_ok=True)
+            stamp = dt.datetime.now().strftime("%Y%m%dT%H%M%S_%f")
+            write_json(runs / f"{stamp}.json", record.model_dump(mode="json"))
+        return record
+
+    def _run_stage(
+        self,
+        case_dir: Path,
+        case: CaseInfo,
+        stage_cls: type[Stage],
+        configs: dict[str, StageConfig],
+        p: PlannedStage,
+        keys: dict[str, str],
+        console: Console,
+        quiet: bool,
+    ) -> StageRecord:
+        final = case_dir / p.folder
+        tmp = temp_dir_for(final, p.key)
+        for stale in stale_temps(final, keep=tmp):
+            shutil.rmtree(stale, ignore_errors=True)
+        if tmp.exists() and not stage_cls.resumable:
+            shutil.rmtree(tmp)
+        tmp.mkdir(parents=True, exist_ok=True)
+        inputs = {n: case_dir / self.folder_name(n) for n in stage_cls.needs}
+        ctx = StageContext(
+            case_dir=case_dir,
+            out=tmp,
+            config=configs[stage_cls.name],
+            case=case,
+            inputs=inputs,
+            resolve_view=lambda name, folder: self.by_name[name].view(folder),
+            console=console,
+            quiet=quiet,
+        )
+        started = time.time()
+        t0 = time.perf_counter()
+        try:
+            with PeakMemory() as mem:
+                summary = stage_cls().run(ctx)
+        except BaseException:
+            if not stage_cls.resumable:
+                shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        wall = time.perf_counter() - t0
+        manifest = Manifest(
+            stage=stage_cls.name,
+            key=p.key,
+            version=stage_cls.version,
+            config=configs[stage_cls.name].model_dump(mode="json"),
+            upstream={n: keys[n] for n in stage_cls.needs},
+            started=started,
+            finished=time.time(),
+            wall_s=wall,
+            peak_rss_mb=mem.peak_mb,
+            summary=summary.model_dump(mode="json"),
+            files=list_files(tmp),
+        )
+        publish(tmp, final, manifest)
+        return StageRecord(
+            stage=stage_cls.name,
+            status="ran",
+            reason=p.reason,
+            wall_s=wall,
+            peak_rss_mb=mem.peak_mb,
+            summary=manifest.summary,
+        )
+
+    def status(self, case_dir: Path, configs: dict[str, StageConfig]) -> list[PlannedStage]:
+        return self.plan(case_dir, CaseInfo.load(case_dir), configs)
+
+    def clean(self, case_dir: Path, stage: str | None) -> list[str]:
+        names = [s.name for s in self.stages] if stage is None else sorted(self.downstream(stage))
+        removed = []
+        for name in names:
+            final = case_dir / self.folder_name(name)
+            for path in [final, *stale_temps(final, keep=None)]:
+                if path.exists():
+                    shutil.rmtree(path)
+                    removed.append(path.name)
+        return removed
+
+
+def _now() -> str:
+    return dt.datetime.now().isoformat(timespec="seconds")
+
+
+def ensure_writable(path: Path) -> None:
+    """Fail early, in one line, when a workdir cannot hold a case."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / f".endopipe-write-test-{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as e:
+        raise EndopipeError(
+            f"cannot write to workdir {path}: {e.strerror or e}; pass --workdir DIR with a writable folder"
+        ) from None

@@ -1,0 +1,1 @@
+"""Readers that turn inputs (video, image folder, case folder, datasets) into frames."""

@@ -1,0 +1,193 @@
+"""Open what the user gave us (a video, an image folder, an endopipe case folder) as frames.
+
+Every problem with the input becomes one InputError line that names it and what to do.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import av
+import cv2
+import numpy as np
+
+from pipeline.cache import digest_path, digest_text
+from pipeline.errors import InputError
+from stages.geometry import Intrinsics
+
+VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg"}
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+HINT = "give a video (mp4, avi, mov, mkv), a folder of images, or an endopipe case folder"
+
+
+@dataclass
+class Frame:
+    source_index: int
+    time_s: float | None
+    rgb: np.ndarray  # HxWx3 uint8
+
+
+def natural_key(path: Path) -> tuple:
+    """Sort frame_2 before frame_10 (zero padding varies between datasets)."""
+    return tuple(int(t) if t.isdigit() else t for t in re.split(r"(\d+)", path.name))
+
+
+def list_images(folder: Path) -> list[Path]:
+    return sorted(
+        (p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()),
+        key=natural_key,
+    )
+
+
+class InputSource:
+    """Frames plus whatever the input says about intrinsics and ground truth."""
+
+    kind: str = "video"
+
+    def __init__(self, path: Path, intrinsics: Intrinsics | None, gt_dir: Path | None) -> None:
+        self.path = path
+        self.intrinsics = intrinsics
+        self.gt_dir = gt_dir
+
+    def frames(self) -> Iterator[Frame]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def frame_count(self) -> int | None:
+        return None
+
+    def digest(self) -> str:
+        parts = [digest_path(self.path)]
+        if self.intrinsics is not None:
+            parts.append(self.intrinsics.model_dump_json())
+        return digest_text("|".join(parts))
+
+
+class VideoSource(InputSource):
+    kind = "video"
+
+    def __init__(self, path: Path, intrinsics: Intrinsics | None, gt_dir: Path | None) -> None:
+        super().__init__(path, intrinsics, gt_dir)
+        self._probe()
+
+    def _open(self) -> av.container.InputContainer:
+        try:
+            container = av.open(str(self.path))
+        except (av.FFmpegError, UnicodeDecodeError, OSError) as e:
+            raise InputError(
+                f"cannot read {self.path} as a video ({_short(e)}); is the file complete? {HINT}"
+            ) from None
+        if not container.streams.video:
+            container.close()
+            raise InputError(f"{self.path} has no video stream; {HINT}")
+        return container
+
+    def _probe(self) -> None:
+        container = self._open()
+        stream = container.streams.video[0]
+        self.fps = float(stream.average_rate or stream.guessed_rate or 25.0)
+        self._declared = int(stream.frames or 0)
+        container.close()
+
+    def frame_count(self) -> int | None:
+        return self._declared or None
+
+    def frames(self) -> Iterator[Frame]:
+        container = self._open()
+        index = 0
+        try:
+            for frame in container.decode(video=0):
+                t = float(frame.time) if frame.time is not None else index / self.fps
+                yield Frame(index, t, frame.to_ndarray(format="rgb24"))
+                index += 1
+        except av.FFmpegError as e:
+            raise InputError(
+                f"video {self.path} is damaged after frame {index} ({_short(e)}); "
+                "re-export it or trim it with --set ingest.end_s=..."
+            ) from None
+        finally:
+            container.close()
+        if self._declared and index < self._declared * 0.9:
+            raise InputError(
+                f"video {self.path} is truncated: its header declares {self._declared} frames "
+                f"but only {index} decode; re-export or re-download it"
+            )
+
+
+class ImageFolderSource(InputSource):
+    kind = "images"
+
+    def __init__(self, path: Path, intrinsics: Intrinsics | None, gt_dir: Path | None) -> None:
+        super().__init__(path, intrinsics, gt_dir)
+        self.files = list_images(path)
+        if not self.files:
+            raise InputError(f"folder {path} holds no images (png, jpg, bmp, tif); {HINT}")
+
+    def frame_count(self) -> int | None:
+        return len(self.files)
+
+    def frames(self) -> Iterator[Frame]:
+        for i, f in enumerate(self.files):
+            bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
+            if bgr is None:
+                raise InputError(f"cannot read image {f}; remove it or replace it")
+            yield Frame(i, None, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+
+
+def load_intrinsics_file(path: Path) -> Intrinsics:
+    if not path.is_file():
+        raise InputError(f"intrinsics file not found: {path}")
+    try:
+        return Intrinsics.load(path)
+    except ValueError as e:
+        raise InputError(
+            f"intrinsics file {path} is not valid ({_short(e)}); it needs width, height, fx, fy, cx, cy"
+        ) from None
+
+
+def open_input(path: Path, intrinsics_file: Path | None = None) -> InputSource:
+    """Pick the reader for a path, checking it is usable before anything is written."""
+    path = Path(path).expanduser()
+    if not path.exists():
+        raise InputError(f"input not found: {path}; {HINT}")
+    intrinsics = load_intrinsics_file(intrinsics_file) if intrinsics_file else None
+    case_dir = _case_folder_of(path)
+    gt_dir = None
+    if case_dir is not None:
+        if intrinsics is None and (case_dir / "intrinsics.json").is_file():
+            intrinsics = load_intrinsics_file(case_dir / "intrinsics.json")
+        gt_dir = case_dir / "gt" if (case_dir / "gt").is_dir() else None
+        if path.is_dir():
+            path = case_dir / "frames" if (case_dir / "frames").is_dir() else case_dir / "video.mp4"
+    if path.is_dir():
+        source: InputSource = ImageFolderSource(path, intrinsics, gt_dir)
+    elif path.suffix.lower() in IMAGE_SUFFIXES:
+        raise InputError(f"{path} is a single image; {HINT}")
+    else:
+        if path.stat().st_size == 0:
+            raise InputError(f"input file {path} is empty (0 bytes); {HINT}")
+        if path.suffix.lower() not in VIDEO_SUFFIXES:
+            raise InputError(f"{path} is not a video file ({path.suffix or 'no suffix'}); {HINT}")
+        source = VideoSource(path, intrinsics, gt_dir)
+    if case_dir is not None:
+        source.kind = "case"
+    return source
+
+
+def _case_folder_of(path: Path) -> Path | None:
+    """An endopipe case folder: intrinsics.json plus video.mp4 or frames/ (DESIGN §5)."""
+    folder = path if path.is_dir() else path.parent
+    has_media = (folder / "video.mp4").is_file() or (folder / "frames").is_dir()
+    if (folder / "intrinsics.json").is_file() and has_media:
+        if path.is_dir() or path.name == "video.mp4" or path.parent.name == "frames":
+            return folder
+    if path.is_dir() and path.name == "frames" and (path.parent / "intrinsics.json").is_file():
+        return path.parent
+    return None
+
+
+def _short(e: BaseException) -> str:
+    text = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+    return text[:160]

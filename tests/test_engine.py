@@ -1,0 +1,172 @@
+"""The engine on toy stages: cache keys, staleness, --from / --until, atomic publish, locks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from filelock import FileLock
+from pydantic import Field
+
+from pipeline.cache import digest_text
+from pipeline.config import load_config
+from pipeline.errors import CaseLocked, ConfigError
+from pipeline.runner import Pipeline
+from pipeline.stage import CaseInfo, Stage, StageConfig, StageContext, Summary, write_json
+
+CALLS: list[str] = []
+
+
+class AConfig(StageConfig):
+    value: int = Field(1, description="A number written to a.txt.")
+    mode: str = Field("x", description="A label.")
+
+
+class A(Stage):
+    """Writes a number."""
+
+    name = "a"
+    Config = AConfig
+
+    def run(self, ctx: StageContext) -> Summary:
+        CALLS.append("a")
+        (ctx.out / "a.txt").write_text(str(ctx.config.value))
+        return Summary(value=ctx.config.value)
+
+
+class BConfig(StageConfig):
+    fail: bool = Field(False, description="Raise halfway through, after writing a file.")
+
+
+class B(Stage):
+    """Doubles a's number."""
+
+    name = "b"
+    needs = ("a",)
+    Config = BConfig
+
+    def run(self, ctx: StageContext) -> Summary:
+        CALLS.append("b")
+        v = int((ctx.input("a") / "a.txt").read_text())
+        (ctx.out / "b.txt").write_text(str(2 * v))
+        if ctx.config.fail:
+            raise RuntimeError("boom")
+        return Summary()
+
+
+class C(Stage):
+    """Adds one."""
+
+    name = "c"
+    needs = ("b",)
+
+    def run(self, ctx: StageContext) -> Summary:
+        CALLS.append("c")
+        v = int((ctx.input("b") / "b.txt").read_text())
+        (ctx.out / "c.txt").write_text(str(v + 1))
+        return Summary()
+
+
+@pytest.fixture()
+def case(tmp_path: Path) -> Path:
+    CALLS.clear()
+    case_dir = tmp_path / "case"
+    case_dir.mkdir()
+    info = CaseInfo(name="case", input="x", kind="video", input_digest=digest_text("x"))
+    write_json(case_dir / "case.json", info.model_dump())
+    return case_dir
+
+
+PIPE = Pipeline([A, B, C])
+
+
+def configs(*sets: str):
+    return load_config(PIPE.stages, [], list(sets), use_default_file=False)
+
+
+def run(case: Path, *sets: str, **kw):
+    CALLS.clear()
+    return PIPE.run(case, configs(*sets), quiet=True, **kw)
+
+
+def test_second_run_is_cached_and_outputs_are_right(case: Path) -> None:
+    run(case)
+    assert CALLS == ["a", "b", "c"]
+    assert (case / "03_c" / "c.txt").read_text() == "3"
+    record = run(case)
+    assert CALLS == []
+    assert [s.status for s in record.stages] == ["cached"] * 3
+    assert len(list((case / "runs").glob("*.json"))) == 2
+
+
+def test_config_change_reruns_stage_and_downstream_only(case: Path) -> None:
+    run(case)
+    run(case, "b.fail=false")  # same value as the default: same key
+    assert CALLS == []
+    run(case, "a.value=5")
+    assert CALLS == ["a", "b", "c"]
+    assert (case / "03_c" / "c.txt").read_text() == "11"
+    run(case, "a.value=5")
+    assert CALLS == []
+
+
+def test_from_and_until(case: Path) -> None:
+    run(case)
+    run(case, from_stage="b")
+    assert CALLS == ["b", "c"]
+    run(case, until="b", force=True)
+    assert CALLS == ["a", "b"]
+
+
+def test_deleted_file_makes_stage_stale(case: Path) -> None:
+    run(case)
+    (case / "02_b" / "b.txt").unlink()
+    plan = {p.stage: p for p in PIPE.status(case, configs())}
+    assert plan["a"].fresh and not plan["b"].fresh and "b.txt" in plan["b"].reason
+    run(case)
+    assert CALLS == ["b", "c"]
+
+
+def test_failure_leaves_previous_result_and_no_partial_folder(case: Path) -> None:
+    run(case)
+    before = (case / "02_b" / "b.txt").read_text()
+    with pytest.raises(RuntimeError):
+        run(case, "a.value=7", "b.fail=true")
+    assert (case / "02_b" / "b.txt").read_text() == before  # the old good result stays
+    assert not list(case.glob(".02_b.tmp-*"))
+    record = sorted((case / "runs").glob("*.json"))[-1].read_text()
+    assert '"failed"' in record and "boom" in record
+
+
+def test_dry_run_changes_nothing(case: Path) -> None:
+    record = run(case, dry_run=True)
+    assert CALLS == [] and not (case / "01_a").exists()
+    assert [s.status for s in record.stages] == ["ran"] * 3
+
+
+def test_second_concurrent_run_gets_a_clear_message(case: Path) -> None:
+    with FileLock(str(case / ".lock")):
+        with pytest.raises(CaseLocked, match="another endopipe run"):
+            PIPE.run(case, configs(), quiet=True)
+
+
+@pytest.mark.parametrize(
+    ("sets", "message"),
+    [
+        (["a.nope=1"], "unknown key 'a.nope' (--set); valid keys: value, mode"),
+        (["zz.value=1"], "unknown stage 'zz' (--set); stages: a, b, c"),
+        (["a.value=abc"], "a.value: Input should be a valid integer"),
+        (["a=1"], "must name a stage and a key"),
+    ],
+)
+def test_bad_settings_name_the_key(sets: list[str], message: str) -> None:
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        configs(*sets)
+
+
+def test_config_files_layer_in_order(tmp_path: Path) -> None:
+    f1, f2 = tmp_path / "one.yaml", tmp_path / "two.yaml"
+    f1.write_text("a:\n  value: 3\n  mode: y\n")
+    f2.write_text("a:\n  value: 4\n")
+    cfg = load_config(PIPE.stages, [str(f1), str(f2)], ["a.mode=z"], use_default_file=False)
+    assert cfg["a"].value == 4 and cfg["a"].mode == "z"
