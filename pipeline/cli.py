@@ -9,15 +9,14 @@ import sys
 import time
 import traceback
 from pathlib import Path
-from typing import Annotated, Optional
-
-import stages  # noqa: F401  (imports cv2 before anything can import pycolmap)
+from typing import Annotated
 
 import click
 import typer
 from rich.console import Console
 from rich.table import Table
 
+import stages  # noqa: F401  (imports cv2 before anything can import pycolmap)
 from pipeline.config import default_yaml, describe_fields, load_config
 from pipeline.errors import EndopipeError
 from pipeline.runner import Pipeline, RunRecord, ensure_writable
@@ -84,7 +83,9 @@ def resolve_case(case: str, workdir: Path) -> Path:
     for candidate in (Path(case), workdir / case):
         if (candidate / "case.json").is_file():
             return candidate
-    raise EndopipeError(f"no endopipe case at {case} (nor {workdir / case}); run `endopipe run INPUT` first")
+    raise EndopipeError(
+        f"no endopipe case at {case} (nor {workdir / case}); run `endopipe run INPUT` first"
+    )
 
 
 def print_record(record: RunRecord, case_dir: Path) -> None:
@@ -98,20 +99,24 @@ def print_record(record: RunRecord, case_dir: Path) -> None:
 
 @app.command()
 def run(
-    input: Annotated[Path, typer.Argument(help="Video file, image folder or endopipe case folder.")],
+    input: Annotated[
+        Path, typer.Argument(help="Video file, image folder or endopipe case folder.")
+    ],
     workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
-    name: Annotated[Optional[str], typer.Option(help="Case name (default: from the input).")] = None,
+    name: Annotated[str | None, typer.Option(help="Case name (default: from the input).")] = None,
     config: Annotated[
-        Optional[list[str]], typer.Option("--config", help="Preset name or YAML file; repeatable.")
+        list[str] | None, typer.Option("--config", help="Preset name or YAML file; repeatable.")
     ] = None,
     set_: Annotated[
-        Optional[list[str]], typer.Option("--set", help="stage.key=value; repeatable.")
+        list[str] | None, typer.Option("--set", help="stage.key=value; repeatable.")
     ] = None,
     intrinsics: Annotated[
-        Optional[Path], typer.Option(help="intrinsics.json for the input's frames.")
+        Path | None, typer.Option(help="intrinsics.json for the input's frames.")
     ] = None,
-    from_stage: Annotated[Optional[str], typer.Option("--from", help="Re-run from this stage.")] = None,
-    until: Annotated[Optional[str], typer.Option(help="Stop after this stage.")] = None,
+    from_stage: Annotated[
+        str | None, typer.Option("--from", help="Re-run from this stage.")
+    ] = None,
+    until: Annotated[str | None, typer.Option(help="Stop after this stage.")] = None,
     force: Annotated[bool, typer.Option(help="Ignore the cache.")] = False,
     dry_run: Annotated[bool, typer.Option(help="Show what would run, run nothing.")] = False,
     wait: Annotated[bool, typer.Option(help="Wait for another run on the same case.")] = False,
@@ -137,7 +142,9 @@ def run(
     )
     if dry_run:
         for s in record.stages:
-            out.print(f"{s.stage:<12} {'cached' if s.status == 'cached' else 'would run'}  ({s.reason})")
+            out.print(
+                f"{s.stage:<12} {'cached' if s.status == 'cached' else 'would run'}  ({s.reason})"
+            )
         return
     print_record(record, case_dir)
 
@@ -146,8 +153,8 @@ def run(
 def status(
     case: Annotated[str, typer.Argument(help="Case folder or name under --workdir.")],
     workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
-    config: Annotated[Optional[list[str]], typer.Option("--config")] = None,
-    set_: Annotated[Optional[list[str]], typer.Option("--set")] = None,
+    config: Annotated[list[str] | None, typer.Option("--config")] = None,
+    set_: Annotated[list[str] | None, typer.Option("--set")] = None,
 ) -> None:
     """Each stage of CASE: fresh, stale (and why) or missing, for the given config."""
     pipe = build_pipeline()
@@ -167,7 +174,9 @@ def status(
 def clean(
     case: Annotated[str, typer.Argument(help="Case folder or name under --workdir.")],
     workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
-    stage: Annotated[Optional[str], typer.Option(help="Remove this stage and its downstream only.")] = None,
+    stage: Annotated[
+        str | None, typer.Option(help="Remove this stage and its downstream only.")
+    ] = None,
 ) -> None:
     """Remove a case's stage outputs (all, or one stage and what depends on it)."""
     pipe = build_pipeline()
@@ -304,4 +313,3 @@ def main(argv: list[str] | None = None) -> int:
 
 def entry() -> None:
     sys.exit(main())
-

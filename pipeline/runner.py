@@ -234,7 +234,9 @@ class Pipeline:
                     started=_now(),
                     ok=True,
                     stages=[
-                        StageRecord(stage=p.stage, status="cached" if p.fresh else "ran", reason=p.reason)
+                        StageRecord(
+                            stage=p.stage, status="cached" if p.fresh else "ran", reason=p.reason
+                        )
                         for p in plan
                     ],
                 )
@@ -262,7 +264,9 @@ class Pipeline:
                 if p.fresh:
                     if not quiet:
                         console.print(f"[dim]· {p.stage:<11} cached[/dim]")
-                    record.stages.append(StageRecord(stage=p.stage, status="cached", reason="fresh"))
+                    record.stages.append(
+                        StageRecord(stage=p.stage, status="cached", reason="fresh")
+                    )
                     continue
                 if not quiet:
                     console.print(f"[bold cyan]▶ {p.stage:<11}[/bold cyan] running ({p.reason})")
@@ -275,7 +279,9 @@ class Pipeline:
                     )
             record.ok = True
         except BaseException as e:
-            failed = next((p.stage for p in plan if p.stage not in {r.stage for r in record.stages}), None)
+            failed = next(
+                (p.stage for p in plan if p.stage not in {r.stage for r in record.stages}), None
+            )
             if failed is not None:
                 reason = str(e).splitlines()[0] if str(e) else type(e).__name__
                 record.stages.append(StageRecord(stage=failed, status="failed", reason=reason))
@@ -380,5 +386,6 @@ def ensure_writable(path: Path) -> None:
         probe.unlink()
     except OSError as e:
         raise EndopipeError(
-            f"cannot write to workdir {path}: {e.strerror or e}; pass --workdir DIR with a writable folder"
+            f"cannot write to workdir {path}: {e.strerror or e}; "
+            "pass --workdir DIR with a writable folder"
         ) from None

@@ -76,7 +76,9 @@ def backproject(depth: np.ndarray, K: np.ndarray, c2w: np.ndarray | None = None)
     return pts
 
 
-def project(points_world: np.ndarray, K: np.ndarray, c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def project(
+    points_world: np.ndarray, K: np.ndarray, c2w: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Nx3 world points -> (Nx2 pixel coordinates, N z-depths) in the camera c2w."""
     w2c = np.linalg.inv(c2w)
     pc = points_world @ w2c[:3, :3].T + w2c[:3, 3]
@@ -100,7 +102,9 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
     return c2w
 
 
-def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
+def umeyama(
+    src: np.ndarray, dst: np.ndarray, with_scale: bool = True
+) -> tuple[float, np.ndarray, np.ndarray]:
     """Similarity (s, R, t) minimising |dst - (s R src + t)|^2 for Nx3 point sets (Umeyama 1991)."""
     src = np.asarray(src, dtype=np.float64)
     dst = np.asarray(dst, dtype=np.float64)

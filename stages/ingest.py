@@ -1,4 +1,4 @@
-"""ingest: frames from a video, image folder or case folder; selection; field-of-view and specular masks."""
+"""ingest: frames from a video, image folder or case folder; selection; scope and specular masks."""
 
 from __future__ import annotations
 
@@ -26,21 +26,34 @@ class IngestConfig(StageConfig):
     start_s: float = Field(0.0, ge=0, description="Skip video before this time (seconds).")
     end_s: float | None = Field(None, gt=0, description="Stop reading the video at this time.")
     max_size: int = Field(
-        320, ge=32, description="Working resolution: the longer image side, in pixels (downscale only)."
+        320,
+        ge=32,
+        description="Working resolution: the longer image side, in pixels (downscale only).",
     )
     min_frames: int = Field(3, ge=2, description="Fewer usable frames than this is an error.")
-    drop_duplicates: bool = Field(True, description="Drop frames nearly identical to the last kept one.")
-    duplicate_threshold: float = Field(
-        0.004, ge=0, description="Mean absolute grey difference (0..1) under which a frame is a duplicate."
+    drop_duplicates: bool = Field(
+        True, description="Drop frames nearly identical to the last kept one."
     )
-    drop_blurred: bool = Field(True, description="Drop frames much blurrier than the sequence median.")
+    duplicate_threshold: float = Field(
+        0.0015,
+        ge=0,
+        description="Mean absolute grey difference (0..1) under which a frame is a duplicate.",
+    )
+    drop_blurred: bool = Field(
+        True, description="Drop frames much blurrier than the sequence median."
+    )
     blur_rel_threshold: float = Field(
-        0.35, ge=0, le=1, description="A frame is blurred when its sharpness < this x the median sharpness."
+        0.35,
+        ge=0,
+        le=1,
+        description="A frame is blurred when its sharpness < this x the median sharpness.",
     )
     black_level: float = Field(
         8.0, ge=0, description="A frame whose 99th-percentile grey level is under this is blank."
     )
-    fov: FovConfig = Field(default_factory=FovConfig, description="Field-of-view (scope border) mask.")
+    fov: FovConfig = Field(
+        default_factory=FovConfig, description="Field-of-view (scope border) mask."
+    )
     specular: SpecularConfig = Field(
         default_factory=SpecularConfig, description="Specular-highlight mask."
     )
@@ -112,7 +125,8 @@ class Ingest(Stage):
     def run(self, ctx: StageContext) -> IngestSummary:
         cfg: IngestConfig = ctx.config  # type: ignore[assignment]
         source = open_input(
-            Path(ctx.case.input), Path(ctx.case.intrinsics_file) if ctx.case.intrinsics_file else None
+            Path(ctx.case.input),
+            Path(ctx.case.intrinsics_file) if ctx.case.intrinsics_file else None,
         )
         frames, dropped, total = select_frames(source, cfg, ctx)
         size = working_size(frames[0].rgb.shape[1], frames[0].rgb.shape[0], cfg.max_size)
@@ -130,7 +144,9 @@ class Ingest(Stage):
                 cv2.imwrite(str(ctx.out / "frames" / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
                 cv2.imwrite(str(ctx.out / "masks" / name), combine(fov, spec))
                 entries.append(
-                    FrameEntry(i, frame.source_index, frame.time_s, f"frames/{name}", f"masks/{name}")
+                    FrameEntry(
+                        i, frame.source_index, frame.time_s, f"frames/{name}", f"masks/{name}"
+                    )
                 )
                 advance()
         intrinsics = source_intrinsics(source, frames[0].rgb.shape, size)
@@ -147,7 +163,9 @@ class Ingest(Stage):
                 "dropped": dropped,
             },
         )
-        write_contact_sheet(ctx.out / "contact_sheet.png", images, fov, ctx.out, cfg.contact_sheet_frames)
+        write_contact_sheet(
+            ctx.out / "contact_sheet.png", images, fov, ctx.out, cfg.contact_sheet_frames
+        )
         ctx.log(
             f"kept {len(frames)} of {total} frames "
             + ", ".join(f"{v} {k}" for k, v in dropped.items() if v)

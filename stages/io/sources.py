@@ -143,7 +143,8 @@ def load_intrinsics_file(path: Path) -> Intrinsics:
         return Intrinsics.load(path)
     except ValueError as e:
         raise InputError(
-            f"intrinsics file {path} is not valid ({_short(e)}); it needs width, height, fx, fy, cx, cy"
+            f"intrinsics file {path} is not valid ({_short(e)}); "
+            "it needs width, height, fx, fy, cx, cy"
         ) from None
 
 
