@@ -19,6 +19,7 @@ from rich.table import Table
 import stages  # noqa: F401  (imports cv2 before anything can import pycolmap)
 from pipeline.config import default_yaml, describe_fields, load_config
 from pipeline.errors import EndopipeError
+from pipeline.executors import CaseRow, CaseTask
 from pipeline.runner import Pipeline, RunRecord, ensure_writable
 from pipeline.stage import CaseInfo, Stage, write_json
 
@@ -34,9 +35,11 @@ DEFAULT_WORKDIR = Path("workdir")
 
 def all_stages() -> list[type[Stage]]:
     """The DAG in order. Imported lazily so `endopipe --help` stays fast."""
+    from stages.centerline import Centerline
     from stages.ingest import Ingest
+    from stages.poses import Poses
 
-    return [Ingest]
+    return [Ingest, Poses, Centerline]
 
 
 def build_pipeline() -> Pipeline:
@@ -53,12 +56,16 @@ def case_name_for(input_path: Path) -> str:
 
 
 def prepare_case(
-    input_path: Path, workdir: Path, name: str | None, intrinsics: Path | None
+    input_path: Path,
+    workdir: Path,
+    name: str | None,
+    intrinsics: Path | None,
+    input_format: str | None = None,
 ) -> Path:
     """Check the input, then create the case folder and its case.json (only then)."""
     from stages.io.sources import open_input
 
-    source = open_input(input_path, intrinsics)
+    source = open_input(input_path, intrinsics, format=input_format)
     digest = source.digest()
     ensure_writable(workdir)
     case_dir = workdir / (name or case_name_for(input_path))
@@ -274,6 +281,232 @@ def _has_preset(name: str) -> bool:
     from pipeline.config import CONFIG_DIR
 
     return (CONFIG_DIR / f"{name}.yaml").is_file()
+
+
+# ---------------------------------------------------------------- endopipe batch
+
+
+def process_case(task: CaseTask) -> CaseRow:
+    """One case of `endopipe batch`, in whatever process (or cluster job) the executor gives it.
+
+    Top-level and picklable; it never raises: a failure becomes the row's one-line reason.
+    With `task.check_only` it changes nothing and only says whether every stage is already
+    fresh (status "ok"), the input cannot be used ("failed"), or something would run
+    ("pending").
+    """
+    from pipeline.cache import Manifest
+    from pipeline.executors import CaseRow, limit_threads, numeric_leaves, one_line
+    from stages.io.sources import open_input
+
+    if task.threads:
+        limit_threads(task.threads)
+    t0, started = time.perf_counter(), time.time()
+    row = CaseRow(case=task.name, status="failed", reader=task.reader, input=task.input)
+    workdir, path = Path(task.workdir), Path(task.input)
+    case_dir = workdir / task.name
+    try:
+        pipe = build_pipeline()  # imports the stages: not counted in the case's wall time
+        t0, started = time.perf_counter(), time.time()
+        configs = {
+            s.name: s.Config.model_validate(task.configs.get(s.name, {})) for s in pipe.stages
+        }
+        selected = [s.name for s in pipe.selection(task.until)]
+        source = open_input(path, None, format=task.reader)
+        gt = source.ground_truth()
+        row.gt_kind = gt.kind if gt is not None else ""
+        if task.check_only:
+            if not _all_fresh(pipe, case_dir, path, source, configs, task.until):
+                row.status = "pending"
+                return row
+            row.stages_cached = selected
+        else:
+            case_dir = prepare_case(path, workdir, task.name, None, task.reader)
+            record = pipe.run(case_dir, configs, until=task.until, quiet=True)
+            row.stages_ran = [s.stage for s in record.stages if s.status == "ran"]
+            row.stages_cached = [s.stage for s in record.stages if s.status == "cached"]
+        for name in selected:
+            manifest = Manifest.load(case_dir / pipe.folder_name(name))
+            if manifest is None:
+                continue
+            row.compute_s += manifest.wall_s
+            row.peak_rss_mb = max(row.peak_rss_mb, manifest.peak_rss_mb)
+            for key, value in numeric_leaves(manifest.summary).items():
+                row.metrics[f"{name}.{key}"] = value
+        report = next(iter(sorted(case_dir.glob("*_report/report.html"))), None)
+        row.report = report.relative_to(workdir).as_posix() if report else None
+        row.status = "ok"
+    except EndopipeError as e:
+        row.reason = one_line(e)
+        _note_failed_stage(row, case_dir, started)
+    except Exception as e:  # an endopipe bug: one line in the row, the traceback in a log
+        if task.check_only:  # let the real run meet it and report it
+            row.status = "pending"
+            return row
+        row.reason = f"internal error: {type(e).__name__}: {one_line(e)}"
+        log = workdir / ".batch" / "logs" / f"{task.name}.log"
+        try:
+            log.parent.mkdir(parents=True, exist_ok=True)
+            log.write_text(traceback.format_exc())
+            row.reason += f" (traceback in {log})"
+        except OSError:
+            pass
+        _note_failed_stage(row, case_dir, started)
+    row.wall_s = time.perf_counter() - t0
+    return row
+
+
+def _all_fresh(
+    pipe: Pipeline, case_dir: Path, path: Path, source, configs: dict, until: str | None
+) -> bool:
+    if not (case_dir / "case.json").is_file():
+        return False
+    info = CaseInfo.load(case_dir)
+    if info.input != str(path.resolve()) or info.input_digest != source.digest():
+        return False
+    return all(p.fresh for p in pipe.plan(case_dir, info, configs, until))
+
+
+def _note_failed_stage(row: CaseRow, case_dir: Path, started: float) -> None:
+    """Which stages ran before the failure, and which failed: from the run's record."""
+    runs = case_dir / "runs"
+    if not runs.is_dir():
+        return
+    recent = sorted(p for p in runs.glob("*.json") if p.stat().st_mtime >= started - 0.05)
+    if not recent:
+        return
+    record = RunRecord.model_validate_json(recent[-1].read_text())
+    row.stages_ran = [s.stage for s in record.stages if s.status == "ran"]
+    row.stages_cached = [s.stage for s in record.stages if s.status == "cached"]
+    row.failed_stage = next((s.stage for s in record.stages if s.status == "failed"), None)
+
+
+def _print_case_row(row: CaseRow) -> None:
+    from rich.markup import escape
+
+    if row.status == "ok":
+        ran = "+".join(row.stages_ran) or "nothing (all cached)"
+        gt = f"  [yellow]{row.gt_kind} ground truth[/yellow]" if row.gt_kind == "pseudo" else ""
+        console.print(
+            f"[green]✓[/green] {escape(row.case)}  [dim]{row.reader}[/dim]  ran {ran}, "
+            f"{row.wall_s:.1f} s{gt}"
+        )
+    else:
+        console.print(
+            f"[red]✗[/red] {escape(row.case)}  [dim]{row.reader}[/dim]  {escape(row.reason)}"
+        )
+
+
+@app.command()
+def batch(
+    folder: Annotated[
+        Path, typer.Argument(help="A data set folder, a folder of videos or cases, or one case.")
+    ],
+    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    config: Annotated[
+        list[str] | None, typer.Option("--config", help="Preset name or YAML file; repeatable.")
+    ] = None,
+    set_: Annotated[
+        list[str] | None, typer.Option("--set", help="stage.key=value; repeatable.")
+    ] = None,
+    format_: Annotated[
+        str,
+        typer.Option(
+            "--format",
+            help="Reader for every case: auto (detect) | case | video | images | hamlyn | c3vd "
+            "| simcol3d.",
+        ),
+    ] = "auto",
+    executor: Annotated[str, typer.Option(help="Where cases run: local | slurm | ray.")] = "local",
+    jobs: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            help="Cases at once. local: worker processes (default 1); slurm: array "
+            "parallelism (default from the cluster config); ray: slots of a local cluster.",
+        ),
+    ] = None,
+    until: Annotated[str | None, typer.Option(help="Stop each case after this stage.")] = None,
+    cluster_config: Annotated[
+        Path | None, typer.Option(help="Slurm / Ray settings (default configs/cluster.yaml).")
+    ] = None,
+    ray_address: Annotated[
+        str | None,
+        typer.Option(help="Ray cluster to join (auto, ray://host:10001); default: a local one."),
+    ] = None,
+    dry_run: Annotated[bool, typer.Option(help="List the cases and readers only.")] = False,
+) -> None:
+    """Run every case under FOLDER through the pipeline; write batch.csv and batch.html."""
+    from rich.markup import escape
+
+    from pipeline.executors import (
+        EXECUTORS,
+        ClusterConfig,
+        load_cluster_config,
+        run_cases,
+        write_csv,
+        write_html,
+    )
+    from stages.io.datasets import find_cases
+
+    pipe = build_pipeline()
+    if until is not None:
+        pipe.index(until)
+    if executor not in EXECUTORS:
+        raise EndopipeError(f"unknown executor '{executor}'; executors: {', '.join(EXECUTORS)}")
+    configs = load_config(pipe.stages, config or [], set_ or [])
+    cluster = load_cluster_config(cluster_config) if executor != "local" else ClusterConfig()
+    ensure_writable(workdir)
+    wd = workdir.resolve()
+    cases = find_cases(folder, format_, skip=(wd,))
+    if not cases:
+        raise EndopipeError(
+            f"no cases found in {folder}: expected videos, image folders, endopipe case folders "
+            "or Hamlyn / C3VD / SimCol3D sequences (or pass --format)"
+        )
+    table = Table(title=f"{len(cases)} case(s) in {folder}")
+    for col in ("case", "reader", "input"):
+        table.add_column(col, overflow="fold")
+    for c in cases:
+        table.add_row(escape(c.name), c.format, escape(str(c.path)))
+    out.print(table)
+    if dry_run:
+        return
+    resolved = {name: cfg.model_dump(mode="json") for name, cfg in configs.items()}
+    tasks = [
+        CaseTask(
+            name=c.name,
+            input=str(c.path.resolve()),
+            reader=c.format,
+            workdir=str(wd),
+            configs=resolved,
+            until=until,
+        )
+        for c in cases
+    ]
+    t0 = time.perf_counter()
+    rows = run_cases(
+        executor,
+        process_case,
+        tasks,
+        jobs=jobs,
+        workdir=wd,
+        cluster=cluster,
+        ray_address=ray_address,
+        on_row=_print_case_row,
+        note=lambda m: console.print(f"[dim]{escape(m)}[/dim]"),
+    )
+    elapsed = time.perf_counter() - t0
+    csv_path = write_csv(rows, wd / "batch.csv")
+    html_path = write_html(rows, wd / "batch.html", title=f"endopipe batch: {folder}")
+    failed = [r for r in rows if r.status != "ok"]
+    out.print(
+        f"{len(rows)} case(s), {len(rows) - len(failed)} ok, {len(failed)} failed, "
+        f"{elapsed:.1f} s with the {executor} executor -> {csv_path}, {html_path}"
+    )
+    if failed:
+        raise EndopipeError(
+            f"{len(failed)} of {len(rows)} case(s) failed; reasons in {csv_path}", exit_code=3
+        )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -18,6 +18,12 @@ from pipeline.errors import ConfigError
 from pipeline.stage import Stage, StageConfig
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+#: Files in configs/ that are not stage presets (cluster settings for `endopipe batch`).
+NOT_PRESETS = {"cluster"}
+
+
+def preset_names() -> list[str]:
+    return sorted(f.stem for f in CONFIG_DIR.glob("*.yaml") if f.stem not in NOT_PRESETS)
 
 
 def resolve_config_path(name_or_path: str) -> Path:
@@ -25,10 +31,10 @@ def resolve_config_path(name_or_path: str) -> Path:
     p = Path(name_or_path)
     if p.is_file():
         return p
-    preset = CONFIG_DIR / f"{name_or_path.removesuffix('.yaml')}.yaml"
-    if preset.is_file():
-        return preset
-    presets = ", ".join(sorted(f.stem for f in CONFIG_DIR.glob("*.yaml")))
+    name = name_or_path.removesuffix(".yaml")
+    if name in preset_names():
+        return CONFIG_DIR / f"{name}.yaml"
+    presets = ", ".join(preset_names())
     raise ConfigError(f"config file not found: {name_or_path} (presets: {presets})")
 
 

@@ -127,6 +127,7 @@ class Ingest(Stage):
         source = open_input(
             Path(ctx.case.input),
             Path(ctx.case.intrinsics_file) if ctx.case.intrinsics_file else None,
+            format=ctx.case.kind,
         )
         frames, dropped, total = select_frames(source, cfg, ctx)
         size = working_size(frames[0].rgb.shape[1], frames[0].rgb.shape[0], cfg.max_size)

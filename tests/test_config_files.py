@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from pipeline.cli import build_pipeline
-from pipeline.config import CONFIG_DIR, default_yaml, load_config
+from pipeline.config import CONFIG_DIR, default_yaml, load_config, preset_names
 
 
 def test_default_yaml_matches_the_code() -> None:
@@ -19,6 +19,6 @@ def test_default_yaml_matches_the_code() -> None:
     }
 
 
-@pytest.mark.parametrize("preset", sorted(p.stem for p in CONFIG_DIR.glob("*.yaml")))
+@pytest.mark.parametrize("preset", preset_names())
 def test_every_preset_validates(preset: str) -> None:
     load_config(build_pipeline().stages, [preset])

@@ -1,16 +1,63 @@
-"""Ground truth of an endopipe case folder (DESIGN §5 `gt/`), used only for evaluation."""
+"""Ground truth for evaluation, one implementation per input kind behind one small protocol.
+
+`GroundTruth` reads an endopipe case folder's `gt/` (DESIGN §5); the dataset readers in
+stages/io/ (hamlyn, c3vd, simcol3d) each bring their own class that reads the dataset's files in
+place. Every implementation answers in endopipe's conventions: depth is float32 z-depth in mm
+(0 = invalid) at the input frame's resolution, poses are OpenCV camera-to-world 4x4 in mm, and
+both are indexed by `source_index` (frame i of the input, as in 01_ingest/frames.json).
+`kind` says how far to trust it: "exact" (rendered or measured) or "pseudo" (e.g. Hamlyn's
+stereo-derived depth); evaluation outputs must carry it as `gt_kind`.
+"""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Literal, Protocol, runtime_checkable
 
 import cv2
 import numpy as np
 
+GtKind = Literal["exact", "pseudo"]
+
+
+@runtime_checkable
+class GroundTruthSource(Protocol):
+    """What evaluation needs from any ground truth."""
+
+    dataset: str  # "endopipe" | "hamlyn" | "c3vd" | "simcol3d"
+    kind: GtKind
+    units: str  # "mm"
+
+    def depth(self, source_index: int) -> np.ndarray | None:
+        """float32 z-depth (mm, 0 = invalid) of input frame `source_index`, or None."""
+        ...
+
+    def has_poses(self) -> bool: ...
+
+    def poses(self) -> list[np.ndarray]:
+        """OpenCV camera-to-world 4x4 poses (mm), one per input frame, by source_index."""
+        ...
+
+
+def open_ground_truth(gt_dir: Path | str) -> GroundTruthSource:
+    """The ground truth behind a `gt_dir` (case.json / frames.json), whatever its format."""
+    gt_dir = Path(gt_dir)
+    if (gt_dir / "poses.json").is_file() or (gt_dir / "depth").is_dir():
+        return GroundTruth(gt_dir)
+    from stages.io.datasets import READERS, detect_dataset
+
+    name = detect_dataset(gt_dir)
+    if name is None:
+        raise ValueError(f"no ground truth that endopipe can read in {gt_dir}")
+    return READERS[name].ground_truth(gt_dir)
+
 
 class GroundTruth:
     """Lazy access to gt/: files are indexed by `source_index` (frame i of the input)."""
+
+    dataset = "endopipe"
+    kind: GtKind = "exact"
 
     def __init__(self, gt_dir: Path) -> None:
         self.dir = Path(gt_dir)

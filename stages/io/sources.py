@@ -21,6 +21,8 @@ from stages.geometry import Intrinsics
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg"}
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 HINT = "give a video (mp4, avi, mov, mkv), a folder of images, or an endopipe case folder"
+#: Readers open_input can be told to use (`endopipe batch --format`); "auto" detects.
+FORMATS = ("auto", "case", "video", "images", "hamlyn", "c3vd", "simcol3d")
 
 
 @dataclass
@@ -63,6 +65,14 @@ class InputSource:
         if self.intrinsics is not None:
             parts.append(self.intrinsics.model_dump_json())
         return digest_text("|".join(parts))
+
+    def ground_truth(self):  # -> stages.io.ground_truth.GroundTruthSource | None
+        """The input's ground truth for evaluation (None when it has none)."""
+        if self.gt_dir is None:
+            return None
+        from stages.io.ground_truth import open_ground_truth
+
+        return open_ground_truth(self.gt_dir)
 
 
 class VideoSource(InputSource):
@@ -136,6 +146,43 @@ class ImageFolderSource(InputSource):
             yield Frame(i, None, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
 
 
+class ImageListSource(InputSource):
+    """Frames from a fixed, ordered list of image files (dataset readers build on it)."""
+
+    kind = "images"
+
+    def __init__(
+        self,
+        path: Path,
+        files: list[Path],
+        intrinsics: Intrinsics | None,
+        gt_dir: Path | None,
+    ) -> None:
+        super().__init__(path, intrinsics, gt_dir)
+        self.files = files
+        if not self.files:
+            raise InputError(f"{path} holds no frames for the {self.kind} reader; {HINT}")
+
+    def frame_count(self) -> int | None:
+        return len(self.files)
+
+    def frames(self) -> Iterator[Frame]:
+        for i, f in enumerate(self.files):
+            bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
+            if bgr is None:
+                raise InputError(f"cannot read image {f}; remove it or replace it")
+            yield Frame(i, None, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+
+    def digest(self) -> str:
+        """Only the frames (and reader, intrinsics) make the ingest key: not the whole folder."""
+        h = [self.kind]
+        for f in self.files:
+            h.append(f"{f.relative_to(self.path)}:{digest_path(f)}")
+        if self.intrinsics is not None:
+            h.append(self.intrinsics.model_dump_json())
+        return digest_text("|".join(h))
+
+
 def load_intrinsics_file(path: Path) -> Intrinsics:
     if not path.is_file():
         raise InputError(f"intrinsics file not found: {path}")
@@ -148,13 +195,39 @@ def load_intrinsics_file(path: Path) -> Intrinsics:
         ) from None
 
 
-def open_input(path: Path, intrinsics_file: Path | None = None) -> InputSource:
-    """Pick the reader for a path, checking it is usable before anything is written."""
+def open_input(
+    path: Path, intrinsics_file: Path | None = None, format: str | None = None
+) -> InputSource:
+    """Pick the reader for a path, checking it is usable before anything is written.
+
+    `format` (one of FORMATS) overrides detection; datasets (Hamlyn, C3VD, SimCol3D) are
+    read in place by the readers of stages/io/datasets.py.
+    """
     path = Path(path).expanduser()
     if not path.exists():
         raise InputError(f"input not found: {path}; {HINT}")
+    fmt = format or "auto"
+    if fmt not in FORMATS:
+        raise InputError(f"unknown input format '{fmt}'; formats: {', '.join(FORMATS)}")
     intrinsics = load_intrinsics_file(intrinsics_file) if intrinsics_file else None
     case_dir = _case_folder_of(path)
+    if fmt == "auto" and case_dir is None and path.is_dir():
+        from stages.io.datasets import detect_dataset
+
+        fmt = detect_dataset(path) or "auto"
+    if fmt not in ("auto", "case", "video", "images"):
+        from stages.io.datasets import open_dataset
+
+        return open_dataset(path, fmt, intrinsics)
+    if fmt == "case" and case_dir is None:
+        raise InputError(
+            f"{path} is not an endopipe case folder (intrinsics.json with video.mp4 or frames/)"
+        )
+    if fmt in ("video", "images"):
+        if (fmt == "images") != path.is_dir():
+            what = "a folder of images" if fmt == "images" else "a video file"
+            raise InputError(f"{path} is not {what} (--format {fmt})")
+        case_dir = None
     gt_dir = None
     if case_dir is not None:
         if intrinsics is None and (case_dir / "intrinsics.json").is_file():

@@ -1,0 +1,151 @@
+"""C3VD (Colonoscopy 3D Video Dataset): one sequence per folder, read in place.
+
+```
+cecum_t1_a/
+  0000_color.png ...     frames (endopipe's source_index = position in numeric order)
+  0000_depth.tiff ...    uint16 z-depth: depth_mm = v * 100 / 65535 (0 = invalid)
+  pose.txt               one line per frame: 16 comma-separated values, column-major,
+                         camera-to-world, millimetres
+  intrinsics.json        optional, endopipe format (C3VD ships a fisheye calibration instead)
+```
+
+File-name zero padding differs between copies (`0_color.png`, `0000_color.png`): files are
+globbed and sorted by their number, and pose line n belongs to frame number n.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from pipeline.errors import InputError
+from stages.geometry import Intrinsics
+from stages.io.sources import ImageListSource, load_intrinsics_file
+
+NAME = "c3vd"
+LAYOUT = "a folder of NNNN_color.png with NNNN_depth.tiff and pose.txt"
+GT_KIND = "exact"
+COLOR = re.compile(r"^(\d+)_color\.png$", re.IGNORECASE)
+DEPTH = re.compile(r"^(\d+)_depth\.tiff?$", re.IGNORECASE)
+DEPTH_RANGE_MM = 100.0  # uint16 full scale
+
+
+def numbered(folder: Path, pattern: re.Pattern[str]) -> list[tuple[int, Path]]:
+    """(number, file) for files whose name matches `pattern`, sorted by number."""
+    if not folder.is_dir():
+        return []
+    out = [(int(m.group(1)), p) for p in folder.iterdir() if (m := pattern.match(p.name))]
+    return sorted(out)
+
+
+def is_sequence(path: Path) -> bool:
+    return path.is_dir() and any(COLOR.match(p.name) for p in path.iterdir())
+
+
+def decode_depth(raw: np.ndarray) -> np.ndarray:
+    """uint16 tiff values -> float32 mm (0 stays 0 = invalid)."""
+    return (raw.astype(np.float64) * (DEPTH_RANGE_MM / 65535.0)).astype(np.float32)
+
+
+def encode_depth(depth_mm: np.ndarray) -> np.ndarray:
+    """float mm -> the dataset's uint16 encoding (quantisation step 100/65535 mm)."""
+    v = np.round(np.asarray(depth_mm, np.float64) * (65535.0 / DEPTH_RANGE_MM))
+    return np.clip(v, 0, 65535).astype(np.uint16)
+
+
+def parse_pose_line(line: str) -> np.ndarray:
+    """16 comma-separated values, column-major -> 4x4 camera-to-world (mm)."""
+    values = [float(v) for v in line.replace(",", " ").split()]
+    if len(values) != 16:
+        raise ValueError(f"expected 16 values, got {len(values)}")
+    return np.array(values, dtype=np.float64).reshape(4, 4).T
+
+
+def format_pose_line(c2w: np.ndarray) -> str:
+    """The inverse of parse_pose_line: a 4x4 written column-major, comma-separated."""
+    return ",".join(repr(float(v)) for v in np.asarray(c2w, np.float64).T.reshape(-1))
+
+
+def read_poses(path: Path) -> list[np.ndarray]:
+    poses = []
+    for n, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            poses.append(parse_pose_line(line))
+        except ValueError as e:
+            raise InputError(f"{path} line {n}: {e}; C3VD poses are 16 values a line") from None
+    return poses
+
+
+def find_intrinsics(seq: Path) -> Intrinsics | None:
+    for folder in (seq, seq.parent):
+        if (folder / "intrinsics.json").is_file():
+            return load_intrinsics_file(folder / "intrinsics.json")
+    return None
+
+
+class C3VDSource(ImageListSource):
+    kind = "c3vd"
+
+    def ground_truth(self) -> C3VDGroundTruth | None:
+        return C3VDGroundTruth(self.path) if self.gt_dir is not None else None
+
+
+def open_sequence(path: Path, intrinsics: Intrinsics | None = None) -> C3VDSource:
+    path = Path(path)
+    frames = numbered(path, COLOR)
+    if not frames:
+        raise InputError(f"{path} is not a C3VD sequence ({LAYOUT})")
+    intrinsics = intrinsics or find_intrinsics(path)
+    has_gt = (path / "pose.txt").is_file() or bool(numbered(path, DEPTH))
+    return C3VDSource(path, [f for _, f in frames], intrinsics, path if has_gt else None)
+
+
+def ground_truth(path: Path) -> C3VDGroundTruth:
+    return C3VDGroundTruth(path)
+
+
+class C3VDGroundTruth:
+    """Depth tiffs and pose.txt of one C3VD sequence, indexed by source_index."""
+
+    dataset = NAME
+    kind = GT_KIND
+    units = "mm"
+
+    def __init__(self, seq: Path) -> None:
+        self.dir = Path(seq)
+        self.numbers = [n for n, _ in numbered(self.dir, COLOR)]
+        self._depth = dict(numbered(self.dir, DEPTH))
+
+    def depth(self, source_index: int) -> np.ndarray | None:
+        if not 0 <= source_index < len(self.numbers):
+            return None
+        path = self._depth.get(self.numbers[source_index])
+        if path is None:
+            return None
+        raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if raw is None:
+            raise InputError(f"cannot read C3VD depth {path}")
+        if raw.ndim == 3:
+            raw = raw[..., 0]
+        return decode_depth(raw)
+
+    def has_poses(self) -> bool:
+        return (self.dir / "pose.txt").is_file()
+
+    def poses(self) -> list[np.ndarray]:
+        if not self.has_poses():
+            return []
+        lines = read_poses(self.dir / "pose.txt")
+        if self.numbers and max(self.numbers) < len(lines):
+            return [lines[n] for n in self.numbers]  # line n is frame number n
+        if len(lines) == len(self.numbers):
+            return lines
+        raise InputError(
+            f"{self.dir / 'pose.txt'} has {len(lines)} poses for {len(self.numbers)} frames "
+            f"numbered up to {max(self.numbers)}"
+        )

@@ -1,0 +1,314 @@
+"""Mesh evaluation (DESIGN §6): Chamfer distance, accuracy, completeness and F-score.
+
+Plain functions over arrays (vertices (V, 3), faces (F, 3), OpenCV camera-to-world poses); no
+pipeline imports, no I/O.
+
+Distances are point-to-surface: points sampled uniformly (by area) on one mesh are measured to
+the nearest point of the other mesh's triangles (open3d's RaycastingScene), not to the other
+mesh's samples, so two identical meshes score ~0 whatever the sample count. `nearest_distance`
+(k-d tree, point-to-point) is there for point clouds.
+
+What is compared (the crop, `evaluate_mesh`):
+- completeness (gt -> est) is measured on the part of the ground-truth surface the cameras
+  could see: points sampled on the GT mesh that project inside the image (and the field-of-view
+  mask) of at least one registered camera, with z-depth in (0, max_depth], and that are the
+  first surface hit along the ray from that camera's centre (occluders: the whole GT mesh).
+  Surface hidden behind folds, out of every frustum, or further than max_depth is not asked for.
+- accuracy (est -> gt) is measured for estimated points inside at least one camera's frustum up
+  to max_depth (no occlusion test: a floater in front of the wall counts), against the whole GT
+  mesh; estimated surface outside every frustum cannot be judged and is left out.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+_CHUNK = 1 << 20  # points per raycasting query
+
+
+def sample_surface(
+    vertices: np.ndarray, faces: np.ndarray, n: int, seed: int = 0
+) -> np.ndarray:
+    """`n` points uniformly distributed (by area) on a triangle mesh; (n, 3) float64."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    if len(f) == 0 or n <= 0:
+        return np.zeros((0, 3))
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    total = area.sum()
+    if not total > 0:
+        return np.zeros((0, 3))
+    rng = np.random.default_rng(seed)
+    tri = rng.choice(len(f), size=n, p=area / total)
+    r1, r2 = rng.random(n), rng.random(n)
+    s = np.sqrt(r1)
+    w0, w1, w2 = 1.0 - s, s * (1.0 - r2), s * r2
+    return w0[:, None] * a[tri] + w1[:, None] * b[tri] + w2[:, None] * c[tri]
+
+
+def _raycasting_scene(vertices: np.ndarray, faces: np.ndarray):
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3d.core.Tensor(np.ascontiguousarray(vertices, np.float32)),
+        o3d.core.Tensor(np.ascontiguousarray(faces, np.uint32)),
+    )
+    return scene
+
+
+def point_to_surface(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unsigned distance of each point (N, 3) to the nearest point of the triangle mesh."""
+    import open3d as o3d
+
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(pts) == 0:
+        return np.zeros(0)
+    if len(np.asarray(faces).reshape(-1, 3)) == 0:
+        return np.full(len(pts), np.inf)
+    # float32 inside open3d: work relative to the points' centre to keep precision.
+    centre = pts.mean(0)
+    scene = _raycasting_scene(np.asarray(vertices, np.float64) - centre, faces)
+    out = np.empty(len(pts))
+    for a in range(0, len(pts), _CHUNK):
+        q = o3d.core.Tensor(np.ascontiguousarray(pts[a : a + _CHUNK] - centre, np.float32))
+        out[a : a + _CHUNK] = scene.compute_distance(q).numpy()
+    return out
+
+
+def nearest_distance(points: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Distance of each point (N, 3) to its nearest neighbour in `reference` (M, 3)."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    ref = np.asarray(reference, np.float64).reshape(-1, 3)
+    if len(ref) == 0:
+        return np.full(len(pts), np.inf)
+    return cKDTree(ref).query(pts, k=1, workers=-1)[0]
+
+
+def camera_depths(
+    points: np.ndarray, c2w: np.ndarray, K: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) pixel coordinates and (N,) z-depths of world points in one OpenCV camera."""
+    w2c = np.linalg.inv(np.asarray(c2w, np.float64))
+    pc = points @ w2c[:3, :3].T + w2c[:3, 3]
+    z = pc[:, 2]
+    safe = np.where(np.abs(z) < 1e-12, 1e-12, z)
+    uv = np.stack([K[0, 0] * pc[:, 0] / safe + K[0, 2], K[1, 1] * pc[:, 1] / safe + K[1, 2]], -1)
+    return uv, z
+
+
+def in_frustum(
+    points: np.ndarray,
+    c2w: np.ndarray,
+    K: np.ndarray,
+    width: int,
+    height: int,
+    max_depth: float,
+    mask: np.ndarray | None = None,
+    margin_px: float = 0.0,
+) -> np.ndarray:
+    """Whether each point projects inside the image (pixel centres 0..W-1, 0..H-1, grown by
+    `margin_px`) and inside `mask` (HxW, nonzero = seen) with z-depth in (0, max_depth]."""
+    uv, z = camera_depths(points, c2w, K)
+    m = margin_px + 0.5
+    ok = (z > 0) & (z <= max_depth)
+    ok &= (uv[:, 0] >= -m) & (uv[:, 0] <= width - 1 + m)
+    ok &= (uv[:, 1] >= -m) & (uv[:, 1] <= height - 1 + m)
+    if mask is not None and ok.any():
+        idx = np.nonzero(ok)[0]
+        u = np.clip(np.round(uv[idx, 0]).astype(np.int64), 0, width - 1)
+        v = np.clip(np.round(uv[idx, 1]).astype(np.int64), 0, height - 1)
+        ok[idx] = np.asarray(mask)[v, u] > 0
+    return ok
+
+
+def in_any_frustum(
+    points: np.ndarray,
+    c2ws: list[np.ndarray],
+    K: np.ndarray,
+    width: int,
+    height: int,
+    max_depth: float,
+    mask: np.ndarray | None = None,
+    margin_px: float = 0.0,
+) -> np.ndarray:
+    """Whether each point lies in the frustum (up to max_depth) of at least one camera."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    seen = np.zeros(len(pts), bool)
+    for c2w in c2ws:
+        todo = np.nonzero(~seen)[0]
+        if len(todo) == 0:
+            break
+        seen[todo] = in_frustum(pts[todo], c2w, K, width, height, max_depth, mask, margin_px)
+    return seen
+
+
+def visible_from_cameras(
+    points: np.ndarray,
+    c2ws: list[np.ndarray],
+    K: np.ndarray,
+    width: int,
+    height: int,
+    max_depth: float,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    mask: np.ndarray | None = None,
+    tol: float = 0.005,
+) -> np.ndarray:
+    """Whether each surface point (on the mesh vertices/faces) is seen by at least one camera:
+    in its frustum up to max_depth (and in `mask`), and the first hit of the ray from the camera
+    centre through it (a hit closer than (1 - tol) x the point's distance occludes it)."""
+    import open3d as o3d
+
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    seen = np.zeros(len(pts), bool)
+    if len(pts) == 0:
+        return seen
+    centre = pts.mean(0)
+    scene = _raycasting_scene(np.asarray(vertices, np.float64) - centre, faces)
+    for c2w in c2ws:
+        todo = np.nonzero(~seen)[0]
+        if len(todo) == 0:
+            break
+        cand = todo[in_frustum(pts[todo], c2w, K, width, height, max_depth, mask)]
+        if len(cand) == 0:
+            continue
+        origin = np.asarray(c2w, np.float64)[:3, 3]
+        vec = pts[cand] - origin
+        dist = np.linalg.norm(vec, axis=1)
+        dirs = vec / np.maximum(dist, 1e-12)[:, None]
+        for a in range(0, len(cand), _CHUNK):
+            sl = slice(a, a + _CHUNK)
+            rays = np.concatenate(
+                [np.broadcast_to(origin - centre, dirs[sl].shape), dirs[sl]], axis=1
+            )
+            hit = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays, np.float32)))
+            t = hit["t_hit"].numpy().astype(np.float64)
+            seen[cand[sl]] |= t >= dist[sl] * (1.0 - tol)
+    return seen
+
+
+def faces_near_cameras(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    c2ws: list[np.ndarray],
+    K: np.ndarray,
+    width: int,
+    height: int,
+    max_depth: float,
+    mask: np.ndarray | None = None,
+    slack: float = 0.05,
+) -> np.ndarray:
+    """Faces whose centroid lies in some camera's frustum, grown by `slack` (fraction of the
+    image size and of max_depth): a cheap superset of the visible surface to sample from."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    centroids = v[f].mean(1)
+    margin = slack * max(width, height)
+    keep = in_any_frustum(
+        centroids, c2ws, K, width, height, max_depth * (1.0 + slack), None, margin
+    )
+    return f[keep]
+
+
+def fscore(d_acc: np.ndarray, d_comp: np.ndarray, threshold: float) -> tuple[float, float, float]:
+    """(precision, recall, F-score) at `threshold` from est->gt and gt->est distances."""
+    p = float(np.mean(d_acc < threshold)) if len(d_acc) else 0.0
+    r = float(np.mean(d_comp < threshold)) if len(d_comp) else 0.0
+    f = 2 * p * r / (p + r) if p + r > 0 else 0.0
+    return p, r, f
+
+
+def surface_metrics(d_acc: np.ndarray, d_comp: np.ndarray, threshold: float) -> dict[str, float]:
+    """Accuracy (mean est->gt), completeness (mean gt->est), Chamfer (their mean), medians,
+    precision / recall / F-score at `threshold`. inf where a side has no points."""
+    acc = float(np.mean(d_acc)) if len(d_acc) else float("inf")
+    comp = float(np.mean(d_comp)) if len(d_comp) else float("inf")
+    p, r, f = fscore(d_acc, d_comp, threshold)
+    return {
+        "chamfer": 0.5 * (acc + comp),
+        "accuracy": acc,
+        "completeness": comp,
+        "accuracy_median": float(np.median(d_acc)) if len(d_acc) else float("inf"),
+        "completeness_median": float(np.median(d_comp)) if len(d_comp) else float("inf"),
+        "precision": p,
+        "recall": r,
+        "fscore": f,
+        "threshold": float(threshold),
+    }
+
+
+def chamfer(
+    est_vertices: np.ndarray,
+    est_faces: np.ndarray,
+    gt_vertices: np.ndarray,
+    gt_faces: np.ndarray,
+    threshold: float,
+    n_samples: int = 100_000,
+    seed: int = 0,
+) -> dict[str, float]:
+    """Metrics of two whole meshes (no crop): `n_samples` points on each, point-to-surface."""
+    est_pts = sample_surface(est_vertices, est_faces, n_samples, seed)
+    gt_pts = sample_surface(gt_vertices, gt_faces, n_samples, seed + 1)
+    d_acc = point_to_surface(est_pts, gt_vertices, gt_faces)
+    d_comp = point_to_surface(gt_pts, est_vertices, est_faces)
+    return surface_metrics(d_acc, d_comp, threshold)
+
+
+def evaluate_mesh(
+    est_vertices: np.ndarray,
+    est_faces: np.ndarray,
+    gt_vertices: np.ndarray,
+    gt_faces: np.ndarray,
+    c2ws: list[np.ndarray],
+    K: np.ndarray,
+    width: int,
+    height: int,
+    max_depth: float,
+    threshold: float,
+    *,
+    mask: np.ndarray | None = None,
+    n_samples: int = 200_000,
+    occlusion: bool = True,
+    seed: int = 0,
+) -> dict[str, float]:
+    """Metrics of an estimated mesh against the part of the GT mesh the cameras could see.
+
+    All inputs share the GT's world frame and units (align first). `c2ws`, `K`, `width`,
+    `height`, `mask`: the registered cameras; `max_depth`: the depth up to which surface counts
+    as seen (the reconstruction's depth truncation). See the module docstring for the crop.
+    Adds to `surface_metrics`: gt_area_seen (area of the GT surface in the crop), the share of
+    GT samples kept, and the number of points on each side.
+    """
+    gt_v = np.asarray(gt_vertices, np.float64)
+    gt_f = np.asarray(gt_faces, np.int64).reshape(-1, 3)
+    near = faces_near_cameras(gt_v, gt_f, c2ws, K, width, height, max_depth, mask)
+    gt_pts = sample_surface(gt_v, near, n_samples, seed + 1)
+    if occlusion:
+        keep = visible_from_cameras(gt_pts, c2ws, K, width, height, max_depth, gt_v, gt_f, mask)
+    else:
+        keep = in_any_frustum(gt_pts, c2ws, K, width, height, max_depth, mask)
+    gt_pts = gt_pts[keep]
+    a, b, c = gt_v[near[:, 0]], gt_v[near[:, 1]], gt_v[near[:, 2]]
+    near_area = float(0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
+
+    est_pts = sample_surface(est_vertices, est_faces, n_samples, seed)
+    est_pts = est_pts[in_any_frustum(est_pts, c2ws, K, width, height, max_depth, mask)]
+
+    d_acc = point_to_surface(est_pts, gt_v, gt_f)
+    d_comp = point_to_surface(gt_pts, est_vertices, est_faces)
+    out = surface_metrics(d_acc, d_comp, threshold)
+    frac = float(keep.mean()) if len(keep) else 0.0
+    out.update(
+        gt_area_seen=near_area * frac,
+        gt_points=int(len(gt_pts)),
+        est_points=int(len(est_pts)),
+    )
+    return out
+
+
+def transform_points(points: np.ndarray, s: float, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """x -> s R x + t for (N, 3) points (a similarity, e.g. from Umeyama)."""
+    return s * np.asarray(points, np.float64) @ np.asarray(R).T + np.asarray(t)

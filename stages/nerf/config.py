@@ -1,0 +1,252 @@
+"""The nerf stage's config tree: field, sampling, losses, training (a run is a filled-in config).
+
+Defaults are the fast CPU setting (TensoRF VM grid, two-pass sampling). The paper's exact setting
+(seed §4.3) is expressible too, see `PAPER_PRESET` and configs/paper.yaml.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from pipeline.stage import StageConfig
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class TensorfConfig(_Section):
+    """TensoRF vector-matrix grid (the CPU default)."""
+
+    density_components: int = Field(8, ge=1, description="VM components per plane for density.")
+    appearance_components: int = Field(
+        16, ge=1, description="VM components per plane for the albedo features."
+    )
+    appearance_dim: int = Field(27, ge=1, description="Albedo feature size fed to the colour MLP.")
+    res_init: int = Field(
+        96, ge=8, description="Grid nodes along the scene box's longest side at the start."
+    )
+    res_final: int = Field(
+        256, ge=8, description="Grid nodes along the longest side after the last upsampling."
+    )
+    upsample_at: list[float] = Field(
+        default_factory=lambda: [0.15, 0.3, 0.45],
+        description="When to upsample the grid, as fractions of train.steps (log-spaced "
+        "resolutions from res_init to res_final).",
+    )
+    composite_features: bool = Field(
+        True,
+        description="Composite the albedo features along the ray and run the colour MLP once "
+        "per ray (fast); off: the MLP runs on every sample.",
+    )
+    tv_weight: float = Field(
+        0.0, ge=0.0, description="Total-variation penalty on the density planes (0: off)."
+    )
+
+
+class HashgridConfig(_Section):
+    """Instant-NGP hash grid in pure PyTorch (for GPU users; slow on a CPU)."""
+
+    levels: int = Field(16, ge=1, description="Resolution levels.")
+    features: int = Field(2, ge=1, description="Features per level.")
+    log2_size: int = Field(19, ge=8, le=24, description="log2 of the hash table rows per level.")
+    base_res: int = Field(16, ge=2, description="Coarsest level's resolution.")
+    max_res: int = Field(1024, ge=4, description="Finest level's resolution.")
+    hidden: int = Field(64, ge=8, description="Width of the density MLP.")
+    geo_features: int = Field(15, ge=1, description="Features passed from density to colour MLP.")
+
+
+class PositionalConfig(_Section):
+    """The paper's coordinate MLP (seed §3.1, §4.3): ReLU MLP over sinusoidal encodings."""
+
+    depth: int = Field(8, ge=2, description="Fully connected layers.")
+    width: int = Field(256, ge=8, description="Hidden units per layer.")
+    skip: int = Field(4, ge=0, description="Layer that gets the encoded input again (0: none).")
+    pos_bands: int = Field(10, ge=0, description="Frequency bands for positions.")
+
+
+class FieldConfig(_Section):
+    """Density sigma(x) and a view-independent albedo a(x)."""
+
+    encoding: Literal["tensorf", "hashgrid", "positional"] = Field(
+        "tensorf",
+        description="tensorf: fastest on a CPU (default); hashgrid: for GPUs; positional: the "
+        "paper's 8x256 MLP.",
+    )
+    tensorf: TensorfConfig = Field(default_factory=TensorfConfig, description="TensoRF settings.")
+    hashgrid: HashgridConfig = Field(default_factory=HashgridConfig, description="Hash grid.")
+    positional: PositionalConfig = Field(
+        default_factory=PositionalConfig, description="Positional-encoding MLP."
+    )
+    warp: bool = Field(
+        True,
+        description="Warp the grid per axis: linear around the camera path, logarithmic "
+        "beyond, so cells grow with the distance to the cameras.",
+    )
+    warp_core_pad: float = Field(
+        1.5, ge=0, description="Linear core: the camera path's box grown by this many radii."
+    )
+    warp_soft: float = Field(
+        2.0, gt=0, description="Beyond the core, cells double in size every ~this many radii."
+    )
+    color_hidden: int = Field(64, ge=8, description="Hidden width of the albedo head.")
+    view_dependent: bool = Field(
+        False,
+        description="Feed the encoded view direction to the colour head (off: the albedo is "
+        "view-independent, as the near-light model wants).",
+    )
+    dir_bands: int = Field(4, ge=0, description="Frequency bands of the view direction.")
+    density_bias: float = Field(
+        -10.0, description="Added to the raw density before the softplus (negative: starts empty)."
+    )
+    density_scale: float = Field(
+        25.0, gt=0, description="Multiplies the softplus density (per scene unit = one radius)."
+    )
+
+
+class ShadingConfig(_Section):
+    """Near-light model (seed §3.2): colour = albedo * (gain * max(n.l, 0) / r^2 + ambient)."""
+
+    enabled: bool = Field(
+        True, description="Use the near-light shading; off: colour = albedo (plain NeRF)."
+    )
+    gamma: float = Field(
+        2.2,
+        gt=0,
+        description="Display gamma of the frames: rendered linear colour is encoded with "
+        "x^(1/gamma) before it is compared with the pixels (1: linear frames).",
+    )
+    ambient: float = Field(0.02, ge=0, description="Initial ambient term (learned).")
+    learn_gain: bool = Field(True, description="Learn the light gain (else keep the initial one).")
+    exposure: bool = Field(False, description="Learn a per-frame exposure (log gain).")
+    normal_eps: float = Field(
+        1.0, gt=0, description="Finite-difference step of the density gradient, in grid cells."
+    )
+    normal_warmup: float = Field(
+        0.1,
+        ge=0,
+        le=1,
+        description="Fraction of training over which the n.l term fades in (starts as 1).",
+    )
+
+
+class SamplingConfig(_Section):
+    """Samples along each ray; bounds come from the lumen prior's ray_bounds."""
+
+    sampler: Literal["two_pass", "coarse_fine"] = Field(
+        "two_pass",
+        description="two_pass: density-only pass without gradients, then resampled samples "
+        "with gradients (fast); coarse_fine: the paper's stratified coarse + importance fine.",
+    )
+    n_coarse: int = Field(64, ge=2, description="Samples of the first pass per ray.")
+    n_fine: int = Field(
+        32, ge=1, description="Samples of the second pass per ray (importance + uniform)."
+    )
+    n_uniform: int = Field(
+        6, ge=0, description="two_pass: how many of n_fine are stratified, not importance-drawn."
+    )
+    spacing: Literal["log", "linear"] = Field(
+        "log", description="Spacing of the first pass in depth (log: denser close to the camera)."
+    )
+    bounds_margin: float = Field(
+        0.5, ge=0, description="The prior's wall is inflated by (1 + margin) to get the far bound."
+    )
+    far_radii: float = Field(
+        12.0, gt=0, description="Cap of the far bound, in lumen radii (looking down the lumen)."
+    )
+    near_fraction: float = Field(
+        0.05, gt=0, description="Near bound as a fraction of the lumen radius at the camera."
+    )
+    chunk: int = Field(8192, ge=256, description="Rays per chunk when rendering whole images.")
+
+
+class LossConfig(_Section):
+    """L = L_photo + l1 L_prior + l2 L_smooth + l3 L_geo (seed §3.5); each term can be off."""
+
+    photo: bool = Field(True, description="L_photo: masked L2 on pixel colours.")
+    prior: bool = Field(True, description="L_prior: the anatomical prior terms.")
+    smooth: bool = Field(True, description="L_smooth: edge-aware depth smoothness on patches.")
+    geo: bool = Field(True, description="L_geo: depth consistency between adjacent frames.")
+    lambda_prior: float = Field(0.1, ge=0, description="lambda_1.")
+    lambda_smooth: float = Field(0.05, ge=0, description="lambda_2.")
+    lambda_geo: float = Field(0.01, ge=0, description="lambda_3.")
+    prior_start: float = Field(
+        10.0, ge=1, description="Coarse to fine: lambda_1 starts at this multiple and decays."
+    )
+    prior_decay: float = Field(
+        0.5, gt=0, le=1, description="Fraction of training over which lambda_1 decays to itself."
+    )
+    core_weight: float = Field(1.0, ge=0, description="Prior: density in the lumen core.")
+    core_fraction: float = Field(0.5, gt=0, lt=1, description="Core = wall shrunk to this.")
+    wall_weight: float = Field(
+        0.2, ge=0, description="Prior: attraction of the surface to the estimated wall."
+    )
+    wall_tolerance: float = Field(
+        0.3, ge=0, description="Relative depth error to the prior's wall tolerated for free."
+    )
+    normal_weight: float = Field(
+        0.1, ge=0, description="Prior: variance of the normals within each patch."
+    )
+    smooth_order: Literal[1, 2] = Field(
+        1, description="Smoothness on depth gradients (1) or second differences (2)."
+    )
+    edge_scale: float = Field(10.0, ge=0, description="Edge-aware weight exp(-scale |grad I|).")
+    patch_size: int = Field(4, ge=2, description="Rays are drawn as patches of this size.")
+    patch_fraction: float = Field(
+        0.5, ge=0, le=1, description="Share of each batch drawn as patches (rest: single rays)."
+    )
+    geo_patches: int = Field(
+        8, ge=0, description="Patches per step warped into the next frame for L_geo."
+    )
+
+
+class TrainConfig(_Section):
+    """Optimisation, schedule, hold-out, checkpoints."""
+
+    steps: int = Field(1500, ge=1, description="Optimisation steps.")
+    batch_rays: int = Field(1024, ge=16, description="Rays per step.")
+    lr_grid: float = Field(0.02, gt=0, description="Learning rate of grid / hash parameters.")
+    lr_mlp: float = Field(1e-3, gt=0, description="Learning rate of MLP parameters.")
+    lr_decay: float = Field(
+        0.1, gt=0, le=1, description="Learning rates decay exponentially to this factor at the end."
+    )
+    holdout_every: int = Field(
+        8,
+        ge=0,
+        description="Frames with index % holdout_every == 0 are held out (not trained on, "
+        "evaluated); 0: train on all.",
+    )
+    seed: int = Field(0, description="Seed of initialisation and ray sampling.")
+    checkpoint_every: int = Field(100, ge=1, description="Steps between atomic checkpoints.")
+    log_every: int = Field(10, ge=1, description="Steps between rows of train_log.csv.")
+    device: Literal["auto", "cpu", "cuda"] = Field(
+        "auto", description="auto: a GPU when torch sees one, else the CPU."
+    )
+    threads: int = Field(0, ge=0, description="torch CPU threads (0: torch's default).")
+    eval_frames: int = Field(
+        0, ge=0, description="Evaluate at most this many held-out frames (0: all of them)."
+    )
+
+
+class NerfConfig(StageConfig):
+    field: FieldConfig = Field(default_factory=FieldConfig, description="The radiance field.")
+    shading: ShadingConfig = Field(default_factory=ShadingConfig, description="Near-light model.")
+    sampling: SamplingConfig = Field(default_factory=SamplingConfig, description="Ray sampling.")
+    loss: LossConfig = Field(default_factory=LossConfig, description="Loss terms and weights.")
+    train: TrainConfig = Field(default_factory=TrainConfig, description="Training.")
+
+
+#: The seed's exact settings (§4.3): configs/paper.yaml holds the same keys under `nerf:`.
+PAPER_PRESET: dict = {
+    "field": {
+        "encoding": "positional",
+        "positional": {"depth": 8, "width": 256, "skip": 4, "pos_bands": 10},
+        "view_dependent": True,
+        "dir_bands": 4,
+    },
+    "sampling": {"sampler": "coarse_fine", "n_coarse": 64, "n_fine": 128, "spacing": "linear"},
+    "train": {"steps": 200000, "lr_mlp": 5e-4, "lr_decay": 0.1},
+    "loss": {"lambda_prior": 0.1, "lambda_smooth": 0.05, "lambda_geo": 0.01},
+}

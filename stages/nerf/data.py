@@ -1,0 +1,151 @@
+"""Training data: frames, masks and poses in the scene frame; rays; batches of rays and patches."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+
+def pixel_rays(
+    c2w: torch.Tensor, K: tuple[float, float, float, float], u: torch.Tensor, v: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Rays through pixel coordinates (pixel-centre convention): origins (B, 3), directions
+    (B, 3) with camera-frame z = 1, so a ray parameter is a z-depth. c2w: (4, 4) or (B, 4, 4)."""
+    fx, fy, cx, cy = K
+    dc = torch.stack([(u - cx) / fx, (v - cy) / fy, torch.ones_like(u)], -1).to(c2w.dtype)
+    if c2w.dim() == 2:
+        d = dc @ c2w[:3, :3].T
+        o = c2w[:3, 3].expand_as(d)
+    else:
+        d = torch.einsum("bij,bj->bi", c2w[:, :3, :3], dc)
+        o = c2w[:, :3, 3]
+    return o.contiguous(), d.contiguous()
+
+
+def holdout_split(indices: list[int], every: int) -> tuple[list[int], list[int]]:
+    """(train, held out): a frame is held out when its endopipe index % every == 0."""
+    if every <= 0:
+        return list(indices), []
+    held = [i for i in indices if i % every == 0]
+    train = [i for i in indices if i % every != 0]
+    if not train:  # too few frames to hold any out
+        return list(indices), []
+    return train, held
+
+
+@dataclass
+class Batch:
+    frame: torch.Tensor  # (B,) position in FrameSet
+    u: torch.Tensor  # (B,) float pixel x
+    v: torch.Tensor  # (B,) float pixel y
+    rgb: torch.Tensor  # (B, 3) display-encoded target in [0, 1]
+    valid: torch.Tensor  # (B,) bool: usable for the photometric loss
+    n_patches: int  # the first n_patches * p * p rays are patches, row-major p x p each
+    patch: int
+
+
+class FrameSet:
+    """Frames of one sequence on a device: images, masks, scene-frame poses, intrinsics."""
+
+    def __init__(
+        self,
+        images: np.ndarray,
+        masks: np.ndarray,
+        c2w_scene: np.ndarray,
+        K: tuple[float, float, float, float],
+        ids: list[int],
+        device: torch.device,
+    ) -> None:
+        self.images = torch.as_tensor(images, dtype=torch.float32, device=device)  # (F,H,W,3)
+        self.masks = torch.as_tensor(masks, dtype=torch.bool, device=device)  # (F,H,W)
+        self.c2w = torch.as_tensor(c2w_scene, dtype=torch.float32, device=device)  # (F,4,4)
+        self.K = K
+        self.ids = list(ids)
+        self.device = device
+        self.n, self.h, self.w = self.masks.shape
+
+    def rays(self, frame: torch.Tensor, u: torch.Tensor, v: torch.Tensor):
+        return pixel_rays(self.c2w[frame], self.K, u, v)
+
+
+class RaySampler:
+    """Random rays of the training frames: single pixels and p x p patches (for L_smooth, the
+    normal variance and L_geo), all inside the usable mask (patch pixels may leave it)."""
+
+    def __init__(
+        self,
+        frames: FrameSet,
+        train: list[int],
+        batch: int,
+        patch: int,
+        patch_fraction: float,
+        gen: torch.Generator,
+    ) -> None:
+        self.f = frames
+        self.train = torch.as_tensor(train, dtype=torch.long, device=frames.device)
+        self.batch, self.patch = batch, patch
+        self.n_patches = int(round(batch * patch_fraction / (patch * patch)))
+        self.n_single = batch - self.n_patches * patch * patch
+        self.gen = gen
+        m = frames.masks[self.train].reshape(len(train), -1)
+        pos = torch.nonzero(m)
+        self.valid_frame = self.train[pos[:, 0]].to(torch.int32)
+        self.valid_pix = pos[:, 1].to(torch.int32)
+        # Patch corners: usable pixels that leave room for the patch.
+        hh, ww = frames.h - patch + 1, frames.w - patch + 1
+        corner = frames.masks[self.train][:, :hh, :ww].reshape(len(train), -1)
+        cpos = torch.nonzero(corner)
+        self.corner_frame = self.train[cpos[:, 0]].to(torch.int32)
+        self.corner_pix = cpos[:, 1].to(torch.int32)
+        self.corner_w = ww
+        if len(self.valid_pix) == 0:
+            raise ValueError("no usable pixels in the training frames (masks are all 0)")
+
+    def sample(self) -> Batch:
+        dev, g = self.f.device, self.gen
+        frames, us, vs = [], [], []
+        if self.n_patches and len(self.corner_pix):
+            k = torch.randint(len(self.corner_pix), (self.n_patches,), generator=g, device=dev)
+            fr = self.corner_frame[k].long()
+            pix = self.corner_pix[k].long()
+            v0, u0 = pix // self.corner_w, pix % self.corner_w
+            dv, du = torch.meshgrid(
+                torch.arange(self.patch, device=dev),
+                torch.arange(self.patch, device=dev),
+                indexing="ij",
+            )
+            frames.append(fr[:, None].expand(-1, self.patch**2).reshape(-1))
+            vs.append((v0[:, None] + dv.reshape(1, -1)).reshape(-1))
+            us.append((u0[:, None] + du.reshape(1, -1)).reshape(-1))
+            n_patches = self.n_patches
+        else:
+            n_patches = 0
+        n_single = self.batch - n_patches * self.patch**2
+        k = torch.randint(len(self.valid_pix), (n_single,), generator=g, device=dev)
+        frames.append(self.valid_frame[k].long())
+        pix = self.valid_pix[k].long()
+        vs.append(pix // self.f.w)
+        us.append(pix % self.f.w)
+        fr, u, v = torch.cat(frames), torch.cat(us), torch.cat(vs)
+        return Batch(
+            frame=fr,
+            u=u.float(),
+            v=v.float(),
+            rgb=self.f.images[fr, v, u],
+            valid=self.f.masks[fr, v, u],
+            n_patches=n_patches,
+            patch=self.patch,
+        )
+
+
+def neighbours(train: list[int]) -> dict[int, int]:
+    """For L_geo: each training frame's next training frame (the last one: its previous)."""
+    order = sorted(train)
+    out = {}
+    for k, i in enumerate(order):
+        if len(order) < 2:
+            break
+        out[i] = order[k + 1] if k + 1 < len(order) else order[k - 1]
+    return out

@@ -1,0 +1,229 @@
+"""Spatial encodings of the NeRF field: TensoRF VM grid, multiresolution hash grid, sinusoids.
+
+All take grid coordinates in [-1, 1]^3 (the scene box, see `scene.py`). The grid encodings share
+one interpolation kernel, `gather_interp`: a weighted sum of K table rows per point. Its forward is
+`F.embedding_bag` (rows are channels-last, so one point reads contiguous memory) and its backward
+an accumulating scatter into the table's gradient: the sample positions never need gradients here
+(normals come from finite differences), which keeps both passes cheap on a CPU.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+class _GatherInterp(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, table: torch.Tensor, idx: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+        n, k = idx.shape
+        offsets = torch.arange(0, n * k, k, device=idx.device)
+        out = F.embedding_bag(
+            idx.reshape(-1), table, offsets, mode="sum", per_sample_weights=w.reshape(-1)
+        )
+        ctx.save_for_backward(idx, w)
+        ctx.rows = table.shape[0]
+        return out
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):  # type: ignore[override]
+        idx, w = ctx.saved_tensors
+        grad = grad.contiguous()
+        g = torch.zeros(ctx.rows, grad.shape[1], dtype=grad.dtype, device=grad.device)
+        # One corner at a time: contiguous products, no (N, K, C) temporary.
+        for k in range(idx.shape[1]):
+            src = grad * w[:, k : k + 1]
+            if g.is_cuda:
+                g.index_add_(0, idx[:, k], src)
+            else:  # on a CPU the accumulating index_put_ is about twice as fast as index_add_
+                g.index_put_((idx[:, k],), src, accumulate=True)
+        return g, None, None
+
+
+def gather_interp(table: torch.Tensor, idx: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """sum_k w[n, k] * table[idx[n, k]] -> (N, C); gradients flow to `table` only."""
+    return _GatherInterp.apply(table, idx, w.detach().to(table.dtype))
+
+
+class VMGrid(nn.Module):
+    """TensoRF's vector-matrix factorisation: sum_m plane_m(u, v) * line_m(w), R channels.
+
+    Three plane/line pairs: (xy | z), (xz | y), (yz | x). `forward` returns the products per
+    point, shape (N, 3 R) ordered pair-major; density sums them, appearance uses them as they
+    are. Grids of the same resolution can share the interpolation set-up (`prepare`).
+    """
+
+    PAIRS = ((0, 1, 2), (0, 2, 1), (1, 2, 0))
+
+    def __init__(self, res: tuple[int, int, int], channels: int, init_std: float = 0.1) -> None:
+        super().__init__()
+        self.channels = channels
+        self.res = tuple(int(r) for r in res)
+        g = torch.Generator().manual_seed(0)
+        self.planes = nn.Parameter(
+            init_std * torch.randn(self._plane_rows(), channels, generator=g)
+        )
+        self.lines = nn.Parameter(init_std * torch.randn(self._line_rows(), channels, generator=g))
+        self._consts: dict[str, tuple[torch.Tensor, ...]] = {}
+
+    def _plane_rows(self) -> int:
+        return sum(self.res[a] * self.res[b] for a, b, _ in self.PAIRS)
+
+    def _line_rows(self) -> int:
+        return sum(self.res[c] for *_, c in self.PAIRS)
+
+    def _constants(self, device: torch.device) -> tuple[torch.Tensor, ...]:
+        key = str(device)
+        if key not in self._consts:
+            a = torch.tensor([p[0] for p in self.PAIRS], device=device)
+            b = torch.tensor([p[1] for p in self.PAIRS], device=device)
+            c = torch.tensor([p[2] for p in self.PAIRS], device=device)
+            res = torch.tensor(self.res, device=device)
+            ra = res[a]
+            sizes = res[a] * res[b]
+            poff = torch.cumsum(sizes, 0) - sizes
+            loff = torch.cumsum(res[c], 0) - res[c]
+            corner = torch.stack([torch.zeros_like(ra), torch.ones_like(ra), ra, ra + 1], -1)
+            self._consts[key] = (a, b, c, res, ra, poff, loff, corner)
+        return self._consts[key]
+
+    def prepare(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """Interpolation indices and weights of points x (N, 3) in [-1, 1]^3."""
+        a, b, c, res, ra, poff, loff, corner = self._constants(x.device)
+        with torch.no_grad():
+            p = ((x + 1.0) * (0.5 * (res - 1))).clamp_(min=0.0).minimum(res - 1.0)
+            i = p.floor().minimum(res - 2.0)
+            f = p - i
+            i = i.long()
+            fa, fb, fc = f[:, a], f[:, b], f[:, c]
+            base = poff + i[:, b] * ra + i[:, a]  # (N, 3)
+            pidx = (base[..., None] + corner).reshape(-1, 4)
+            ga, gb = 1.0 - fa, 1.0 - fb
+            pw = torch.stack([ga * gb, fa * gb, ga * fb, fa * fb], -1).reshape(-1, 4)
+            lbase = loff + i[:, c]
+            lidx = torch.stack([lbase, lbase + 1], -1).reshape(-1, 2)
+            lw = torch.stack([1.0 - fc, fc], -1).reshape(-1, 2)
+        return pidx, pw, lidx, lw
+
+    def forward(
+        self, x: torch.Tensor, prep: tuple[torch.Tensor, ...] | None = None
+    ) -> torch.Tensor:
+        pidx, pw, lidx, lw = prep if prep is not None else self.prepare(x)
+        plane = gather_interp(self.planes, pidx, pw)
+        line = gather_interp(self.lines, lidx, lw)
+        return (plane * line).view(x.shape[0], 3 * self.channels)
+
+    @torch.no_grad()
+    def upsampled(self, res: tuple[int, int, int]) -> VMGrid:
+        """A copy at another resolution (bilinear / linear resampling, align_corners)."""
+        new = VMGrid(res, self.channels)
+        planes, lines = [], []
+        poff, loff = 0, 0
+        for a, b, c in self.PAIRS:
+            ra, rb, rc = self.res[a], self.res[b], self.res[c]
+            p = self.planes[poff : poff + ra * rb].T.reshape(1, self.channels, rb, ra)
+            p = F.interpolate(p, size=(res[b], res[a]), mode="bilinear", align_corners=True)
+            planes.append(p.reshape(self.channels, -1).T)
+            ln = self.lines[loff : loff + rc].T.reshape(1, self.channels, rc)
+            ln = F.interpolate(ln, size=(res[c],), mode="linear", align_corners=True)
+            lines.append(ln.reshape(self.channels, -1).T)
+            poff += ra * rb
+            loff += rc
+        new.planes = nn.Parameter(torch.cat(planes).contiguous())
+        new.lines = nn.Parameter(torch.cat(lines).contiguous())
+        return new.to(self.planes.device)
+
+    def total_variation(self) -> torch.Tensor:
+        """Mean squared difference of neighbouring plane and line entries (TensoRF's TV)."""
+        tv = self.planes.new_zeros(())
+        poff, loff = 0, 0
+        for a, b, c in self.PAIRS:
+            ra, rb, rc = self.res[a], self.res[b], self.res[c]
+            p = self.planes[poff : poff + ra * rb].view(rb, ra, -1)
+            tv = tv + (p[1:] - p[:-1]).square().mean() + (p[:, 1:] - p[:, :-1]).square().mean()
+            ln = self.lines[loff : loff + rc]
+            tv = tv + (ln[1:] - ln[:-1]).square().mean()
+            poff += ra * rb
+            loff += rc
+        return tv
+
+
+_PRIMES = (1, 2654435761, 805459861)
+
+
+class HashGrid(nn.Module):
+    """Instant-NGP multiresolution hash encoding in plain PyTorch (levels x features out).
+
+    Coarse levels that fit in the table are indexed densely; finer ones through the spatial hash.
+    """
+
+    def __init__(
+        self,
+        levels: int = 16,
+        features: int = 2,
+        log2_size: int = 19,
+        base_res: int = 16,
+        max_res: int = 1024,
+    ) -> None:
+        super().__init__()
+        self.levels, self.features = levels, features
+        self.size = 2**log2_size
+        growth = math.exp((math.log(max_res) - math.log(base_res)) / max(levels - 1, 1))
+        self.res = [int(math.floor(base_res * growth**lv)) for lv in range(levels)]
+        rows, self.offsets, self.dense = 0, [], []
+        for r in self.res:
+            n = (r + 1) ** 3
+            dense = n <= self.size
+            self.dense.append(dense)
+            self.offsets.append(rows)
+            rows += n if dense else self.size
+        g = torch.Generator().manual_seed(0)
+        self.table = nn.Parameter((torch.rand(rows, features, generator=g) * 2 - 1) * 1e-4)
+        corners = torch.tensor([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+        self.register_buffer("corners", corners, persistent=False)
+
+    @property
+    def out_dim(self) -> int:
+        return self.levels * self.features
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        n = x.shape[0]
+        with torch.no_grad():
+            u = ((x + 1.0) * 0.5).clamp(0.0, 1.0)
+            idx_all, w_all = [], []
+            for lv, r in enumerate(self.res):
+                p = u * r
+                i0 = p.floor().clamp(max=r - 1)
+                f = p - i0
+                c = i0.long().unsqueeze(1) + self.corners  # (N, 8, 3)
+                wc = torch.where(self.corners.bool(), f.unsqueeze(1), 1.0 - f.unsqueeze(1))
+                w = wc.prod(-1)
+                if self.dense[lv]:
+                    idx = (c[..., 0] * (r + 1) + c[..., 1]) * (r + 1) + c[..., 2]
+                else:
+                    h = c[..., 0] * _PRIMES[0]
+                    h = torch.bitwise_xor(h, c[..., 1] * _PRIMES[1])
+                    h = torch.bitwise_xor(h, c[..., 2] * _PRIMES[2])
+                    idx = h % self.size
+                idx_all.append(idx + self.offsets[lv])
+                w_all.append(w)
+            idx = torch.stack(idx_all, 1).reshape(n * self.levels, 8)
+            w = torch.stack(w_all, 1).reshape(n * self.levels, 8)
+        return gather_interp(self.table, idx, w).view(n, self.out_dim)
+
+
+def sinusoidal(x: torch.Tensor, bands: int, include_input: bool = True) -> torch.Tensor:
+    """NeRF positional encoding: [x, sin(2^k pi x), cos(2^k pi x)] for k < bands."""
+    if bands <= 0:
+        return x
+    freqs = (2.0 ** torch.arange(bands, device=x.device, dtype=x.dtype)) * math.pi
+    xb = (x.unsqueeze(-1) * freqs).flatten(-2)
+    out = [torch.sin(xb), torch.cos(xb)]
+    return torch.cat(([x] if include_input else []) + out, -1)
+
+
+def sinusoidal_dim(dims: int, bands: int, include_input: bool = True) -> int:
+    return dims * (2 * bands + (1 if include_input else 0)) if bands > 0 else dims

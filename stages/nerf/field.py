@@ -1,0 +1,247 @@
+"""Radiance fields: density sigma(x) and a view-independent albedo a(x) over grid coordinates.
+
+Every field offers the same small interface, which is all the sampler and the renderer use:
+`density(x)` (no colour work: the sampler's first pass), `forward(x, d)` -> (sigma, albedo),
+`param_groups(lr_grid, lr_mlp)` and `on_step(step, total)` (True when the parameters were
+replaced, e.g. a TensoRF upsampling, so the optimiser must be rebuilt).
+
+A field with `deferred = True` returns per-sample *features* instead of albedo; the renderer
+composites them along the ray (normalised by opacity) and calls `decode(features, d)` once per
+ray. TensoRF does this by default: its albedo MLP then costs one evaluation per ray instead of
+one per sample, the largest saving on a CPU (the albedo of a surface point is unchanged: a(x) =
+decode(features(x))).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from stages.nerf.config import FieldConfig
+from stages.nerf.encodings import HashGrid, VMGrid, sinusoidal, sinusoidal_dim
+
+
+def _mlp(dims: list[int]) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i in range(len(dims) - 1):
+        layers.append(nn.Linear(dims[i], dims[i + 1]))
+        if i < len(dims) - 2:
+            layers.append(nn.ReLU(inplace=True))
+    return nn.Sequential(*layers)
+
+
+def _inside(x: torch.Tensor) -> torch.Tensor:
+    return (x.abs() <= 1.0).all(-1)
+
+
+class RadianceField(nn.Module):
+    """Base: subclasses implement `density` and `forward` (and `decode` when deferred)."""
+
+    deferred: bool = False
+
+    def __init__(self, cfg: FieldConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self.dir_dim = sinusoidal_dim(3, cfg.dir_bands) if cfg.view_dependent else 0
+
+    @property
+    def cell(self) -> float:
+        """Typical grid cell in grid coordinates (finite-difference step of normals)."""
+        return 2.0 / 256
+
+    def _activate(self, raw: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        sigma = F.softplus(raw + self.cfg.density_bias) * self.cfg.density_scale
+        return sigma * _inside(x).to(sigma.dtype)
+
+    def _dir_features(self, d: torch.Tensor | None, n: int, like: torch.Tensor) -> list:
+        if not self.dir_dim:
+            return []
+        if d is None:
+            return [like.new_zeros(n, self.dir_dim)]
+        d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+        return [sinusoidal(d, self.cfg.dir_bands)]
+
+    def density(self, x: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def forward(
+        self, x: torch.Tensor, d: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        raise NotImplementedError
+
+    def decode(self, features: torch.Tensor, d: torch.Tensor | None = None) -> torch.Tensor:
+        """Composited features (B, C) -> albedo (B, 3); identity for non-deferred fields."""
+        return features
+
+    def param_groups(self, lr_grid: float, lr_mlp: float) -> list[dict]:
+        return [{"params": list(self.parameters()), "lr": lr_mlp, "name": "mlp"}]
+
+    def on_step(self, step: int, total: int) -> bool:
+        return False
+
+    def extra_loss(self) -> torch.Tensor | None:
+        return None
+
+
+class TensorfField(RadianceField):
+    """TensoRF VM grids for density and albedo features, then a small colour MLP."""
+
+    def __init__(self, cfg: FieldConfig, box_extent: tuple[float, float, float]) -> None:
+        super().__init__(cfg)
+        t = cfg.tensorf
+        self.extent = tuple(float(e) for e in box_extent)
+        res = self._res(t.res_init)
+        self.density_grid = VMGrid(res, t.density_components, init_std=0.1)
+        self.app_grid = VMGrid(res, t.appearance_components, init_std=0.1)
+        self.basis = nn.Linear(3 * t.appearance_components, t.appearance_dim, bias=False)
+        h = cfg.color_hidden
+        self.color = _mlp([t.appearance_dim + self.dir_dim, h, h, 3])
+        self.register_buffer("res_now", torch.tensor(res), persistent=True)
+        self.deferred = t.composite_features
+
+    def _res(self, longest: int) -> tuple[int, int, int]:
+        cell = max(self.extent) / (longest - 1)
+        return tuple(int(max(8, round(e / cell) + 1)) for e in self.extent)  # type: ignore
+
+    def schedule(self, total: int) -> list[tuple[int, tuple[int, int, int]]]:
+        """(step, resolution) of every upsampling."""
+        t = self.cfg.tensorf
+        k = len(t.upsample_at)
+        if k == 0 or t.res_final == t.res_init:
+            return []
+        sizes = torch.linspace(math.log(t.res_init), math.log(t.res_final), k + 1).exp()
+        return [
+            (int(round(f * total)), self._res(int(round(float(s)))))
+            for f, s in zip(t.upsample_at, sizes[1:], strict=True)
+        ]
+
+    @property
+    def cell(self) -> float:
+        return 2.0 / (max(self.density_grid.res) - 1)
+
+    def density(self, x: torch.Tensor) -> torch.Tensor:
+        return self._activate(self.density_grid(x).sum(-1), x)
+
+    def forward(self, x: torch.Tensor, d: torch.Tensor | None = None):
+        prep = self.density_grid.prepare(x)  # both grids share their resolution
+        sigma = self._activate(self.density_grid(x, prep).sum(-1), x)
+        f = self.app_grid(x, prep)
+        if self.deferred:
+            return sigma, f
+        return sigma, self.decode(f, d)
+
+    def decode(self, features: torch.Tensor, d: torch.Tensor | None = None) -> torch.Tensor:
+        h = torch.cat(
+            [self.basis(features), *self._dir_features(d, features.shape[0], features)], -1
+        )
+        return torch.sigmoid(self.color(h))
+
+    def param_groups(self, lr_grid: float, lr_mlp: float) -> list[dict]:
+        grids = [*self.density_grid.parameters(), *self.app_grid.parameters()]
+        mlp = [*self.basis.parameters(), *self.color.parameters()]
+        return [
+            {"params": grids, "lr": lr_grid, "name": "grid"},
+            {"params": mlp, "lr": lr_mlp, "name": "mlp"},
+        ]
+
+    def set_resolution(self, res: tuple[int, int, int]) -> None:
+        self.density_grid = self.density_grid.upsampled(res)
+        self.app_grid = self.app_grid.upsampled(res)
+        self.res_now = torch.tensor(res)
+
+    def on_step(self, step: int, total: int) -> bool:
+        for at, res in self.schedule(total):
+            if step == at and tuple(self.density_grid.res) != res:
+                self.set_resolution(res)
+                return True
+        return False
+
+    def extra_loss(self) -> torch.Tensor | None:
+        w = self.cfg.tensorf.tv_weight
+        return w * self.density_grid.total_variation() if w > 0 else None
+
+
+class HashgridField(RadianceField):
+    """Multiresolution hash encoding, a density MLP and an albedo MLP (Instant-NGP layout)."""
+
+    def __init__(self, cfg: FieldConfig) -> None:
+        super().__init__(cfg)
+        h = cfg.hashgrid
+        self.encoding = HashGrid(h.levels, h.features, h.log2_size, h.base_res, h.max_res)
+        self.sigma_net = _mlp([self.encoding.out_dim, h.hidden, 1 + h.geo_features])
+        self.color = _mlp([h.geo_features + self.dir_dim, cfg.color_hidden, cfg.color_hidden, 3])
+
+    @property
+    def cell(self) -> float:
+        return 2.0 / self.cfg.hashgrid.max_res
+
+    def _geo(self, x: torch.Tensor) -> torch.Tensor:
+        return self.sigma_net(self.encoding(x))
+
+    def density(self, x: torch.Tensor) -> torch.Tensor:
+        return self._activate(self._geo(x)[:, 0], x)
+
+    def forward(self, x: torch.Tensor, d: torch.Tensor | None = None):
+        g = self._geo(x)
+        sigma = self._activate(g[:, 0], x)
+        h = torch.cat([g[:, 1:], *self._dir_features(d, x.shape[0], g)], -1)
+        return sigma, torch.sigmoid(self.color(h))
+
+    def param_groups(self, lr_grid: float, lr_mlp: float) -> list[dict]:
+        mlp = [*self.sigma_net.parameters(), *self.color.parameters()]
+        return [
+            {"params": list(self.encoding.parameters()), "lr": lr_grid, "name": "grid"},
+            {"params": mlp, "lr": lr_mlp, "name": "mlp"},
+        ]
+
+
+class PositionalField(RadianceField):
+    """The paper's MLP: 8 x 256 ReLU layers over a 10-band encoding, a skip at layer 4."""
+
+    def __init__(self, cfg: FieldConfig) -> None:
+        super().__init__(cfg)
+        p = cfg.positional
+        self.in_dim = sinusoidal_dim(3, p.pos_bands)
+        layers = []
+        for i in range(p.depth):
+            din = self.in_dim if i == 0 else p.width
+            if p.skip and i == p.skip:
+                din += self.in_dim
+            layers.append(nn.Linear(din, p.width))
+        self.layers = nn.ModuleList(layers)
+        self.sigma_head = nn.Linear(p.width, 1)
+        self.feature = nn.Linear(p.width, p.width)
+        self.color = _mlp([p.width + self.dir_dim, p.width // 2, 3])
+
+    @property
+    def cell(self) -> float:
+        return 2.0 / (2**self.cfg.positional.pos_bands)
+
+    def _trunk(self, x: torch.Tensor) -> torch.Tensor:
+        e = sinusoidal(x, self.cfg.positional.pos_bands)
+        h = e
+        for i, layer in enumerate(self.layers):
+            if self.cfg.positional.skip and i == self.cfg.positional.skip:
+                h = torch.cat([h, e], -1)
+            h = F.relu(layer(h))
+        return h
+
+    def density(self, x: torch.Tensor) -> torch.Tensor:
+        return self._activate(self.sigma_head(self._trunk(x))[:, 0], x)
+
+    def forward(self, x: torch.Tensor, d: torch.Tensor | None = None):
+        h = self._trunk(x)
+        sigma = self._activate(self.sigma_head(h)[:, 0], x)
+        f = torch.cat([self.feature(h), *self._dir_features(d, x.shape[0], h)], -1)
+        return sigma, torch.sigmoid(self.color(f))
+
+
+def make_field(cfg: FieldConfig, box_extent: tuple[float, float, float]) -> RadianceField:
+    if cfg.encoding == "tensorf":
+        return TensorfField(cfg, box_extent)
+    if cfg.encoding == "hashgrid":
+        return HashgridField(cfg)
+    return PositionalField(cfg)

@@ -1,0 +1,80 @@
+"""The loss terms of seed §3.3-3.5, as plain functions of rendered quantities.
+
+L = L_photo + l1 L_prior + l2 L_smooth + l3 L_geo, with l1 decaying from a multiple of itself
+(coarse to fine: the prior first fixes the global geometry, then lets details through).
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+def photo(rgb: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """Masked L2 (mean over usable rays and channels); specular pixels are masked by ingest."""
+    err = (rgb - target).square().mean(-1)
+    v = valid.to(err.dtype)
+    return (err * v).sum() / v.sum().clamp_min(1.0)
+
+
+def psnr(mse: torch.Tensor | float) -> float:
+    m = float(mse)
+    return float("inf") if m <= 0 else -10.0 * torch.log10(torch.tensor(m)).item()
+
+
+def core_density(tau: torch.Tensor, in_core: torch.Tensor) -> torch.Tensor:
+    """Optical thickness accumulated inside the lumen's core, per ray, averaged (seed §3.3)."""
+    return (tau * in_core.to(tau.dtype)).sum(1).mean()
+
+
+def wall_attraction(
+    depth: torch.Tensor,
+    opacity: torch.Tensor,
+    wall: torch.Tensor,
+    has_wall: torch.Tensor,
+    tolerance: float,
+) -> torch.Tensor:
+    """Surface near the prior's wall: relative depth error beyond `tolerance` (a hinge, so a
+    rough prior does not bias the fine shape), plus full opacity for rays that meet the wall."""
+    rel = ((depth - wall).abs() / wall.clamp_min(1e-6) - tolerance).clamp_min(0.0)
+    term = rel + (1.0 - opacity).clamp_min(0.0)
+    v = has_wall.to(term.dtype)
+    return (term * v).sum() / v.sum().clamp_min(1.0)
+
+
+def normal_variance(normals: torch.Tensor) -> torch.Tensor:
+    """(P, n, 3) normals of P patches: mean squared deviation from each patch's mean normal."""
+    mean = normals.mean(1, keepdim=True)
+    return (normals - mean).square().sum(-1).mean()
+
+
+def edge_aware_smoothness(depth: torch.Tensor, image: torch.Tensor, order: int, edge_scale: float):
+    """(P, p, p) depth patches, (P, p, p, 3) image patches: depth gradients (normalised by the
+    patch's mean depth) weighted by exp(-edge_scale |grad I|) (seed §3.4)."""
+    z = depth / depth.mean((1, 2), keepdim=True).detach().clamp_min(1e-6)
+    gx_i = (image[:, :, 1:] - image[:, :, :-1]).abs().mean(-1)
+    gy_i = (image[:, 1:] - image[:, :-1]).abs().mean(-1)
+    if order == 1:
+        gx = (z[:, :, 1:] - z[:, :, :-1]).abs()
+        gy = (z[:, 1:] - z[:, :-1]).abs()
+        wx, wy = torch.exp(-edge_scale * gx_i), torch.exp(-edge_scale * gy_i)
+    else:
+        gx = (z[:, :, 2:] - 2 * z[:, :, 1:-1] + z[:, :, :-2]).abs()
+        gy = (z[:, 2:] - 2 * z[:, 1:-1] + z[:, :-2]).abs()
+        wx = torch.exp(-edge_scale * torch.maximum(gx_i[:, :, 1:], gx_i[:, :, :-1]))
+        wy = torch.exp(-edge_scale * torch.maximum(gy_i[:, 1:], gy_i[:, :-1]))
+    return (gx * wx).mean() + (gy * wy).mean()
+
+
+def geometric_consistency(
+    z_warped: torch.Tensor, z_rendered: torch.Tensor, valid: torch.Tensor
+) -> torch.Tensor:
+    """Relative difference of frame t's depth warped into t+1 and t+1's rendered depth there."""
+    rel = (z_warped - z_rendered).abs() / z_warped.detach().clamp_min(1e-6)
+    v = valid.to(rel.dtype)
+    return (rel * v).sum() / v.sum().clamp_min(1.0)
+
+
+def prior_multiplier(step: int, total: int, start: float, decay: float) -> float:
+    """Coarse to fine: lambda_1 x start at step 0, decaying geometrically to x1 at decay*total."""
+    frac = step / max(total, 1)
+    return float(start ** max(0.0, 1.0 - frac / decay))

@@ -1,0 +1,181 @@
+"""Use a trained model: save / load it, render depth (z), opacity and colour for any camera, and
+evaluate density on a 3D grid (for marching cubes). World units in, world units out.
+
+    model = load_model(folder)                    # 04_nerf/ (or the model.pt path)
+    prior = LumenPrior.load(centerline / "prior.npz")
+    out = render_image(model, prior, intrinsics, c2w)   # depth (H, W) z-depth, opacity, rgb
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from stages.geometry import Intrinsics
+from stages.nerf.config import NerfConfig
+from stages.nerf.data import pixel_rays
+from stages.nerf.model import NerfModel
+from stages.nerf.scene import SceneBox
+
+MODEL_FILE = "model.pt"
+
+
+def save_model(path: Path, model: NerfModel, meta: dict | None = None) -> None:
+    """model.pt: config, scene box, frame count, weights (CPU tensors), free-form meta."""
+    state = {k: v.detach().cpu() for k, v in model.state_dict().items()}
+    blob = {
+        "format": "endopipe-nerf/1",
+        "config": model.cfg.model_dump(mode="json"),
+        "box": model.box.state(),
+        "n_frames": int(model.exposure.shape[0]),
+        "state": state,
+        "meta": meta or {},
+    }
+    tmp = Path(path).with_suffix(".tmp")
+    torch.save(blob, tmp)
+    tmp.replace(path)
+
+
+def load_model(folder: Path | str, device: str | torch.device = "cpu") -> NerfModel:
+    """The trained model in a nerf stage folder (or a model.pt path), in eval mode."""
+    path = Path(folder)
+    if path.is_dir():
+        path = path / MODEL_FILE
+    blob = torch.load(path, map_location="cpu", weights_only=False)
+    cfg = NerfConfig.model_validate(blob["config"])
+    model = NerfModel(cfg, SceneBox.from_state(blob["box"]), blob["n_frames"])
+    model.load_state_dict(blob["state"])
+    model.meta = blob.get("meta", {})  # type: ignore[attr-defined]
+    return model.to(device).eval()
+
+
+def box_bounds(
+    box: SceneBox, o: torch.Tensor, d: torch.Tensor, near_min: float = 1e-3
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Slab intersection of scene-frame rays with the scene box (used without a prior)."""
+    lo = torch.as_tensor(box.lo, dtype=o.dtype, device=o.device)
+    hi = torch.as_tensor(box.hi, dtype=o.dtype, device=o.device)
+    inv = 1.0 / torch.where(d.abs() < 1e-9, torch.full_like(d, 1e-9), d)
+    t0, t1 = (lo - o) * inv, (hi - o) * inv
+    near = torch.minimum(t0, t1).amax(-1).clamp_min(near_min)
+    far = torch.maximum(t0, t1).amin(-1)
+    return near, torch.maximum(far, near * 1.5)
+
+
+def scene_bounds(model: NerfModel, prior, o: torch.Tensor, d: torch.Tensor):
+    """near / far (scene depth) of scene-frame rays: from the prior, else from the box."""
+    if prior is None:
+        return box_bounds(model.box, o, d)
+    from stages.nerf.train import PriorBounds
+
+    near, far, _ = PriorBounds(prior, model.box, model.cfg).bounds(
+        o, d, model.cfg.sampling.bounds_margin
+    )
+    return near, far
+
+
+@torch.no_grad()
+def render_image(
+    model: NerfModel,
+    prior,
+    intrinsics: Intrinsics,
+    c2w: np.ndarray,
+    height: int | None = None,
+    width: int | None = None,
+    *,
+    chunk: int | None = None,
+    colour: bool = True,
+    frame: int | None = None,
+) -> dict[str, np.ndarray]:
+    """Render one camera (world c2w, OpenCV). Returns float32 arrays: depth (H, W) z-depth in
+    world units (0 where the ray stays transparent), opacity (H, W), and rgb (H, W, 3) in
+    [0, 1] (display-encoded) when `colour`. `frame` picks a training frame's exposure."""
+    h = height or intrinsics.height
+    w = width or intrinsics.width
+    k = intrinsics if (w, h) == (intrinsics.width, intrinsics.height) else intrinsics.scaled(w, h)
+    dev = model.log_gain.device
+    c2w_s = torch.as_tensor(
+        model.box.c2w_to_scene(np.asarray(c2w)), dtype=torch.float32, device=dev
+    )
+    vv, uu = torch.meshgrid(
+        torch.arange(h, device=dev, dtype=torch.float32),
+        torch.arange(w, device=dev, dtype=torch.float32),
+        indexing="ij",
+    )
+    o, d = pixel_rays(c2w_s, (k.fx, k.fy, k.cx, k.cy), uu.reshape(-1), vv.reshape(-1))
+    chunk = chunk or model.cfg.sampling.chunk
+    depth, opacity, rgb = [], [], []
+    fr = None if frame is None else torch.tensor([frame], device=dev)
+    for a in range(0, o.shape[0], chunk):
+        oc, dc = o[a : a + chunk], d[a : a + chunk]
+        near, far = scene_bounds(model, prior, oc, dc)
+        out = model.render_rays(
+            oc, dc, near, far, colour=colour, frame=None if fr is None else fr.expand(len(oc))
+        )
+        depth.append(out["depth"])
+        opacity.append(out["opacity"])
+        if colour:
+            rgb.append(out["rgb"].clamp(0, 1))
+    op = torch.cat(opacity).view(h, w)
+    z = torch.cat(depth).view(h, w) * model.box.scale
+    z = torch.where(op > 1e-3, z, torch.zeros_like(z))
+    result = {
+        "depth": z.float().cpu().numpy(),
+        "opacity": op.float().cpu().numpy(),
+    }
+    if colour:
+        result["rgb"] = torch.cat(rgb).view(h, w, 3).float().cpu().numpy()
+    return result
+
+
+@dataclass
+class DensityGrid:
+    """sigma on a regular world-frame grid: values[i, j, k] at origin + (i, j, k) * spacing.
+
+    sigma is per world unit (optical thickness of a step ds is sigma * ds)."""
+
+    values: np.ndarray
+    origin: np.ndarray
+    spacing: float
+
+    def points(self) -> np.ndarray:
+        axes = [self.origin[i] + self.spacing * np.arange(self.values.shape[i]) for i in range(3)]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), -1)
+
+
+@torch.no_grad()
+def density_grid(
+    model: NerfModel,
+    resolution: int = 256,
+    bounds: tuple[np.ndarray, np.ndarray] | None = None,
+    chunk: int = 1 << 18,
+) -> DensityGrid:
+    """Density on a world-axis-aligned grid with `resolution` nodes along its longest side,
+    over `bounds` (world lo, hi) or the world bounding box of the model's scene box."""
+    box = model.box
+    if bounds is None:
+        corners = np.array(np.meshgrid(*zip(box.lo, box.hi, strict=True), indexing="ij"))
+        corners = box.scene_to_world_np(corners.reshape(3, -1).T)
+        lo, hi = corners.min(0), corners.max(0)
+    else:
+        lo, hi = (np.asarray(b, np.float64) for b in bounds)
+    spacing = float((hi - lo).max() / max(resolution - 1, 1))
+    shape = tuple(int(np.floor((hi[i] - lo[i]) / spacing)) + 1 for i in range(3))
+    dev = model.log_gain.device
+    axes = [
+        torch.as_tensor(lo[i] + spacing * np.arange(shape[i]), dtype=torch.float32)
+        for i in range(3)
+    ]
+    out = np.empty(shape, np.float32)
+    plane = shape[1] * shape[2]
+    yz = torch.stack(torch.meshgrid(axes[1], axes[2], indexing="ij"), -1).reshape(-1, 2)
+    step = max(1, chunk // plane)
+    for i0 in range(0, shape[0], step):
+        xs = axes[0][i0 : i0 + step]
+        pts = torch.cat([xs.repeat_interleave(plane)[:, None], yz.repeat(len(xs), 1)], 1).to(dev)
+        sigma = model.density_scene(box.world_to_scene(pts)) / box.scale
+        out[i0 : i0 + len(xs)] = sigma.view(len(xs), shape[1], shape[2]).cpu().numpy()
+    return DensityGrid(values=out, origin=lo, spacing=spacing)

@@ -1,0 +1,168 @@
+"""The scene frame: a similarity from world (camera) units to scene units, and the field's box.
+
+scene = R^T (world - centre) / scale: R aligns the scene's axes with the principal directions of
+the camera path (a tube's long axis becomes a grid axis, which suits the VM factorisation), and
+one scene unit is one lumen radius of the prior. The box is where the field lives; outside it the
+density is zero. Grid coordinates map the box to [-1, 1]^3.
+
+The map to the grid is warped per axis: linear over the core (the camera path's bounding box
+grown by `core_pad` radii), logarithmic beyond it, so cells grow with the distance to the
+cameras. Depth error is judged relative to depth, and a tube seen down its length reaches far:
+the warp spends the grid where the cameras can resolve detail. Being per axis, it keeps the
+VM factorisation's planes and lines meaningful.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+
+class SceneBox:
+    def __init__(
+        self,
+        centre: np.ndarray,
+        rotation: np.ndarray,
+        scale: float,
+        lo: np.ndarray,
+        hi: np.ndarray,
+        core_lo: np.ndarray | None = None,
+        core_hi: np.ndarray | None = None,
+        soft: float = 1.0,
+    ) -> None:
+        self.centre = np.asarray(centre, np.float64).reshape(3)
+        self.rotation = np.asarray(rotation, np.float64).reshape(3, 3)
+        self.scale = float(scale)
+        self.lo = np.asarray(lo, np.float64).reshape(3)
+        self.hi = np.asarray(hi, np.float64).reshape(3)
+        # No warp unless a core is given (the core then covers the box).
+        self.core_lo = self.lo.copy() if core_lo is None else np.asarray(core_lo, np.float64)
+        self.core_hi = self.hi.copy() if core_hi is None else np.asarray(core_hi, np.float64)
+        self.soft = float(soft)
+        self._t: dict[str, tuple[torch.Tensor, ...]] = {}
+
+    # --- persistence ------------------------------------------------------------------------
+    def state(self) -> dict:
+        return {
+            "centre": self.centre.tolist(),
+            "rotation": self.rotation.tolist(),
+            "scale": self.scale,
+            "lo": self.lo.tolist(),
+            "hi": self.hi.tolist(),
+            "core_lo": self.core_lo.tolist(),
+            "core_hi": self.core_hi.tolist(),
+            "soft": self.soft,
+        }
+
+    @classmethod
+    def from_state(cls, s: dict) -> SceneBox:
+        return cls(
+            s["centre"],
+            s["rotation"],
+            s["scale"],
+            s["lo"],
+            s["hi"],
+            s.get("core_lo"),
+            s.get("core_hi"),
+            s.get("soft", 1.0),
+        )
+
+    # --- transforms -------------------------------------------------------------------------
+    @property
+    def extent(self) -> np.ndarray:
+        """Size of the box in warped units (= scene units inside the core)."""
+        return self.warp_np(self.hi) - self.warp_np(self.lo)
+
+    def warp_np(self, x: np.ndarray) -> np.ndarray:
+        a, b, k = self.core_lo, self.core_hi, self.soft
+        x = np.asarray(x, np.float64)
+        y = np.where(x > b, b + k * np.log1p(np.maximum(x - b, 0) / k), x)
+        return np.where(x < a, a - k * np.log1p(np.maximum(a - x, 0) / k), y)
+
+    def cell_scene(self, longest: int) -> float:
+        """Edge of a grid cell inside the core, in scene units, for `longest` nodes."""
+        return float(self.extent.max() / max(longest - 1, 1))
+
+    def world_to_scene_np(self, x: np.ndarray) -> np.ndarray:
+        return ((np.asarray(x) - self.centre) @ self.rotation) / self.scale
+
+    def scene_to_world_np(self, x: np.ndarray) -> np.ndarray:
+        return (np.asarray(x) * self.scale) @ self.rotation.T + self.centre
+
+    def c2w_to_scene(self, c2w: np.ndarray) -> np.ndarray:
+        """A camera pose (4x4, world) in the scene frame: rotation R^T Rc, centre mapped."""
+        out = np.eye(4)
+        out[:3, :3] = self.rotation.T @ np.asarray(c2w)[:3, :3]
+        out[:3, 3] = self.world_to_scene_np(np.asarray(c2w)[:3, 3])
+        return out
+
+    def _tensors(self, device: torch.device) -> tuple[torch.Tensor, ...]:
+        key = str(device)
+        if key not in self._t:
+            f = torch.float32
+            glo, ghi = self.warp_np(self.lo), self.warp_np(self.hi)
+            self._t[key] = tuple(
+                torch.tensor(v, dtype=f, device=device)
+                for v in (
+                    self.centre,
+                    self.rotation,
+                    glo,
+                    2.0 / (ghi - glo),
+                    self.core_lo,
+                    self.core_hi,
+                )
+            )
+        return self._t[key]
+
+    def scene_to_world(self, x: torch.Tensor) -> torch.Tensor:
+        c, r = self._tensors(x.device)[:2]
+        return (x * self.scale) @ r.T + c
+
+    def world_to_scene(self, x: torch.Tensor) -> torch.Tensor:
+        c, r = self._tensors(x.device)[:2]
+        return ((x - c) @ r) / self.scale
+
+    def to_grid(self, x: torch.Tensor) -> torch.Tensor:
+        """Scene coordinates -> [-1, 1]^3 over the box (warped outside the core)."""
+        _, _, glo, inv, a, b = self._tensors(x.device)
+        k = self.soft
+        y = torch.where(x > b, b + k * torch.log1p((x - b).clamp_min(0) / k), x)
+        y = torch.where(x < a, a - k * torch.log1p((a - x).clamp_min(0) / k), y)
+        return (y - glo) * inv - 1.0
+
+    # --- construction -----------------------------------------------------------------------
+    @classmethod
+    def fit(
+        cls,
+        centres: np.ndarray,
+        scale: float,
+        points: np.ndarray,
+        pad: float = 0.03,
+        core_pad: float | None = None,
+        soft: float = 1.0,
+    ) -> SceneBox:
+        """Axes from the camera centres' principal directions; box around `points` (world).
+
+        With `core_pad` (in radii = scene units), the grid is warped outside the camera path's
+        bounding box grown by core_pad; `soft` sets how fast the cells grow beyond it."""
+        centres = np.asarray(centres, np.float64).reshape(-1, 3)
+        centre = centres.mean(0)
+        rotation = np.eye(3)
+        if len(centres) >= 3:
+            _, s, vt = np.linalg.svd(centres - centre, full_matrices=True)
+            if s[0] > 1e-9:
+                # Principal direction as the scene z axis (the tube's long axis).
+                rotation = np.stack([vt[1], vt[2], vt[0]], 1)
+                if np.linalg.det(rotation) < 0:
+                    rotation[:, 0] = -rotation[:, 0]
+        box = cls(centre, rotation, scale, np.zeros(3), np.ones(3))
+        pts = box.world_to_scene_np(np.concatenate([np.asarray(points).reshape(-1, 3), centres]))
+        lo, hi = pts.min(0), pts.max(0)
+        margin = pad * (hi - lo).max()
+        lo, hi = lo - margin, hi + margin
+        if core_pad is None:
+            return cls(centre, rotation, scale, lo, hi)
+        cam = box.world_to_scene_np(centres)
+        core_lo = np.maximum(cam.min(0) - core_pad, lo)
+        core_hi = np.minimum(cam.max(0) + core_pad, hi)
+        return cls(centre, rotation, scale, lo, hi, core_lo, core_hi, soft)

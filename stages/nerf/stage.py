@@ -1,0 +1,246 @@
+"""nerf: a NeRF of the lumen regularised by the anatomical prior (seed §3), fast on a CPU.
+
+Trains on the registered frames except every 8th (index % 8 == 0, held out and evaluated), with
+ray bounds and L_prior from the centerline stage's tube prior. Writes model.pt (see render.py to
+use it), train_log.csv, loss.png, heldout.png and metrics.json; resumes from checkpoint.pt
+after a kill (the stage is resumable, its temporary folder survives).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from pipeline.errors import EndopipeError
+from pipeline.stage import Stage, StageContext, Summary, write_json
+from stages.nerf import losses
+from stages.nerf.config import NerfConfig
+from stages.nerf.data import FrameSet, holdout_split, pixel_rays
+from stages.nerf.eval import sequence_metrics
+from stages.nerf.render import MODEL_FILE, render_image, save_model
+from stages.nerf.scene import SceneBox
+from stages.nerf.train import CHECKPOINT, PriorBounds, Trainer, pick_device
+
+
+def load_prior(centerline) -> object:
+    """The LumenPrior of the centerline stage (its folder, or a view with a folder)."""
+    from stages.prior import LumenPrior
+
+    if hasattr(centerline, "prior") and not callable(centerline.prior):
+        return centerline.prior
+    folder = Path(getattr(centerline, "folder", centerline))
+    path = folder / "prior.npz" if folder.is_dir() else folder
+    if not path.is_file():
+        raise EndopipeError(f"no lumen prior at {path}; re-run the centerline stage")
+    return LumenPrior.load(path)
+
+
+def fit_box(
+    c2w: list[np.ndarray], K: tuple[float, float, float, float], hw: tuple[int, int], prior, cfg
+) -> SceneBox:
+    """Scene box around what the cameras can see inside the prior's (inflated) lumen."""
+    centres = np.array([c[:3, 3] for c in c2w])
+    box0 = SceneBox.fit(centres, float(prior.typical_radius), centres)
+    box0.lo, box0.hi = np.full(3, -1.0), np.full(3, 1.0)
+    pb = PriorBounds(prior, box0, cfg)
+    h, w = hw
+    vv, uu = np.meshgrid(np.linspace(0, h - 1, 12), np.linspace(0, w - 1, 16), indexing="ij")
+    u = torch.tensor(uu.ravel(), dtype=torch.float32)
+    v = torch.tensor(vv.ravel(), dtype=torch.float32)
+    pts = []
+    for c in c2w:
+        cs = torch.tensor(box0.c2w_to_scene(c), dtype=torch.float32)
+        o, d = pixel_rays(cs, K, u, v)
+        _, far, _ = pb.bounds(o, d, cfg.sampling.bounds_margin)
+        pts.append(box0.scene_to_world_np((o + far[:, None] * d).numpy()))
+    f = cfg.field
+    return SceneBox.fit(
+        centres,
+        float(prior.typical_radius),
+        np.concatenate(pts),
+        core_pad=f.warp_core_pad if f.warp else None,
+        soft=f.warp_soft,
+    )
+
+
+def build_frames(ingest, poses, device: torch.device):
+    """Registered frames (endopipe order): images in [0, 1], usable masks, world c2w."""
+    ids = [i for i in poses.registered if i < len(ingest.frames)]
+    if len(ids) < 2:
+        raise EndopipeError(f"nerf needs at least 2 registered frames, got {len(ids)}")
+    k = poses.intrinsics
+    if (k.width, k.height) != (ingest.width, ingest.height):
+        k = k.scaled(ingest.width, ingest.height)
+    images = np.stack([ingest.image(i) for i in ids]).astype(np.float32) / 255.0
+    masks = np.stack([ingest.mask(i) > 127 for i in ids])
+    c2w = [poses.c2w[i] for i in ids]
+    return ids, k, images, masks, c2w
+
+
+class NerfSummary(Summary):
+    steps: int
+    train_frames: int
+    heldout_frames: int
+    train_s: float
+    rays_per_s: float
+    render_ms: float
+    heldout_psnr: float | None = None
+    depth: dict | None = None
+    resumed_from: int = 0
+    device: str = "cpu"
+
+
+class Nerf(Stage):
+    """NeRF with near-light shading and the lumen prior (TensoRF VM grid by default)."""
+
+    name = "nerf"
+    needs = ("ingest", "poses", "centerline")
+    version = 1
+    Config = NerfConfig
+    resumable = True
+
+    def run(self, ctx: StageContext) -> NerfSummary:
+        cfg: NerfConfig = ctx.config  # type: ignore[assignment]
+        if cfg.train.threads:
+            torch.set_num_threads(cfg.train.threads)
+        device = pick_device(cfg.train.device)
+        ingest, poses = ctx.input("ingest"), ctx.input("poses")
+        prior = load_prior(ctx.input("centerline"))
+        ids, k, images, masks, c2w = build_frames(ingest, poses, device)
+        K = (k.fx, k.fy, k.cx, k.cy)
+        box = fit_box(c2w, K, images.shape[1:3], prior, cfg)
+        frames = FrameSet(
+            images, masks, np.stack([box.c2w_to_scene(c) for c in c2w]), K, ids, device
+        )
+        train_ids, held_ids = holdout_split(ids, cfg.train.holdout_every)
+        pos = {i: p for p, i in enumerate(ids)}
+        trainer = Trainer(cfg, frames, [pos[i] for i in train_ids], prior, box, ctx.out, ctx.log)
+        resumed = trainer.try_resume()
+        start = trainer.step_i
+        if resumed:
+            ctx.log(f"resuming from checkpoint at step {start}")
+        with ctx.progress("nerf", total=cfg.train.steps) as advance:
+            trainer.fit(advance)
+        trainer.write_log(ctx.out / "train_log.csv")
+        plot_log(trainer.rows, ctx.out / "loss.png")
+        save_model(
+            ctx.out / MODEL_FILE,
+            trainer.model,
+            {"frame_ids": ids, "train": train_ids, "heldout": held_ids, "units": poses.file.units},
+        )
+        model = trainer.model.eval()
+        rays_per_s = cfg.train.batch_rays * trainer.step_i / max(trainer.elapsed, 1e-9)
+        evaluation = evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg, ctx)
+        (ctx.out / CHECKPOINT).unlink(missing_ok=True)
+        write_json(ctx.out / "metrics.json", evaluation)
+        return NerfSummary(
+            steps=trainer.step_i,
+            train_frames=len(train_ids),
+            heldout_frames=len(held_ids),
+            train_s=round(trainer.elapsed, 2),
+            rays_per_s=round(rays_per_s, 1),
+            render_ms=evaluation.get("render_ms", float("nan")),
+            heldout_psnr=evaluation.get("psnr"),
+            depth=evaluation.get("depth"),
+            resumed_from=start,
+            device=str(device),
+        )
+
+
+def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) -> dict:
+    """Render the held-out frames: PSNR on usable pixels, depth metrics against ground truth."""
+    from stages.io.ground_truth import GroundTruth
+
+    held = held_ids[: cfg.train.eval_frames] if cfg.train.eval_frames else held_ids
+    gt = GroundTruth(ingest.gt_dir) if ingest.gt_dir is not None else None
+    pos = {i: p for p, i in enumerate(ids)}
+    preds, gts, fovs, mses, times, previews = [], [], [], [], [], []
+    for i in held:
+        t0 = time.perf_counter()
+        out = render_image(model, prior, k, c2w[pos[i]])
+        times.append(time.perf_counter() - t0)
+        img = ingest.image(i).astype(np.float32) / 255.0
+        m = ingest.mask(i) > 127
+        mses.append(float(((out["rgb"] - img) ** 2).mean(-1)[m].mean()) if m.any() else np.nan)
+        previews.append((img, out))
+        if gt is not None:
+            g = gt.depth(ingest.frames[i].source_index)
+            if g is not None:
+                if g.shape != out["depth"].shape:
+                    import cv2
+
+                    g = cv2.resize(g, out["depth"].shape[::-1], interpolation=cv2.INTER_NEAREST)
+                preds.append(out["depth"])
+                gts.append(g)
+                fovs.append(
+                    ingest.fov() > 127 if (ingest.folder / "fov_mask.png").is_file() else None
+                )
+    result: dict = {
+        "heldout": held,
+        "render_ms": round(1000 * float(np.median(times)), 1) if times else None,
+    }
+    if mses:
+        result["psnr"] = round(float(np.nanmean([losses.psnr(m) for m in mses])), 3)
+    if preds:
+        result["depth"] = sequence_metrics(preds, gts, fovs)
+        result["depth_frames"] = len(preds)
+    if previews:
+        write_preview(ctx.out / "heldout.png", previews[:4], gts[:4] if gts else None)
+    return result
+
+
+def write_preview(path: Path, items, gts) -> None:
+    """Rows of held-out frames: image, rendering, rendered depth, ground-truth depth."""
+    import cv2
+
+    rows = []
+    for n, (img, out) in enumerate(items):
+        d = out["depth"]
+        ref = gts[n] if gts else d
+        lo, hi = np.percentile(ref[ref > 0], [1, 99]) if (ref > 0).any() else (0.0, 1.0)
+
+        def colour(z):
+            x = np.clip(
+                (np.log(np.maximum(z, 1e-6)) - np.log(lo)) / (np.log(hi) - np.log(lo)), 0, 1
+            )
+            c = cv2.applyColorMap((x * 255).astype(np.uint8), cv2.COLORMAP_TURBO)[:, :, ::-1]
+            return np.where((z > 0)[..., None], c, 0).astype(np.uint8)
+
+        tiles = [(img * 255).astype(np.uint8), (out["rgb"] * 255).astype(np.uint8), colour(d)]
+        if gts:
+            tiles.append(colour(gts[n]))
+        rows.append(np.concatenate(tiles, 1))
+    cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(rows, 0), cv2.COLOR_RGB2BGR))
+
+
+def plot_log(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not rows:
+        return
+    steps = [r["step"] for r in rows]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    for key in ("loss", "photo", "prior", "smooth", "geo"):
+        vals = [r.get(key) for r in rows]
+        if any(v is not None for v in vals):
+            axes[0].plot(steps, [np.nan if v is None else v for v in vals], label=key)
+    axes[0].set_yscale("log")
+    axes[0].set_xlabel("step")
+    axes[0].legend()
+    axes[1].plot(steps, [r["psnr"] for r in rows])
+    axes[1].set_xlabel("step")
+    axes[1].set_ylabel("train PSNR (dB)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def describe_config() -> str:
+    return json.dumps(NerfConfig().model_dump(mode="json"), indent=1)

@@ -1,0 +1,342 @@
+"""poses: COLMAP SfM on synthetic and real endoscopy, ground-truth and file sources, quality gate.
+
+Fast tests run on a 20-frame 320x256 synthetic colon; the 60-frame colon, C3VD and the
+laparoscopy video are @slow (run with `pytest -m slow tests/test_poses.py`).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from contextlib import nullcontext
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pipeline.cli import main
+from pipeline.errors import StageFailed
+from stages.cameras import CamerasFile, PosesView
+from stages.geometry import Intrinsics, apply_sim3, look_at
+from stages.io.colmap_model import (
+    CameraModel,
+    PoseSet,
+    read_colmap_model,
+    read_transforms_json,
+    write_text_model,
+    write_transforms_json,
+)
+from stages.metrics import ate_rmse, path_length, pose_metrics, relative_rotation_error_deg
+from stages.poses import PosesConfig, match_frames, ranges
+
+# ---------------------------------------------------------------- helpers and fixtures
+
+
+def run(
+    capsys: pytest.CaptureFixture | None, source: Path, workdir: Path, *sets: str
+) -> tuple[int, str]:
+    """`endopipe run SOURCE --workdir WORKDIR --until poses --quiet --set ...`."""
+    args = ["run", str(source), "--workdir", str(workdir), "--until", "poses", "--quiet"]
+    code = main(args + [a for s in sets for a in ("--set", s)])
+    if capsys is None:
+        return code, ""
+    captured = capsys.readouterr()
+    return code, captured.err + captured.out
+
+
+def summary(case: Path) -> dict:
+    return json.loads((case / "02_poses" / "manifest.json").read_text())["summary"]
+
+
+def gt_poses(case_src: Path) -> list[np.ndarray]:
+    data = json.loads((case_src / "gt" / "poses.json").read_text())
+    return [np.array(p) for p in data["poses"]]
+
+
+def assert_one_line_failure(code: int, output: str, expect: str) -> None:
+    assert code != 0
+    assert "Traceback" not in output, output
+    lines = [line for line in output.strip().splitlines() if line.strip()]
+    assert lines and "error" in lines[-1].lower(), output
+    assert expect in " ".join(lines), output
+
+
+@pytest.fixture(scope="module")
+def colon(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from stages.synth import SynthConfig, generate_case
+
+    out = tmp_path_factory.mktemp("synth") / "colon"
+    generate_case(out, SynthConfig(seed=0, frames=20, width=320, height=256))
+    return out
+
+
+@pytest.fixture(scope="module")
+def colon_rerun(colon: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A second run of the same case (keeping COLMAP's database, which must not change poses)."""
+    wd = tmp_path_factory.mktemp("wd")
+    code, _ = run(None, colon, wd, "poses.keep_database=true")
+    assert code == 0
+    return wd / "colon"
+
+
+@pytest.fixture(scope="module")
+def colon_run(colon: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    wd = tmp_path_factory.mktemp("wd")
+    code, _ = run(None, colon, wd)
+    assert code == 0
+    return wd / "colon"
+
+
+# ---------------------------------------------------------------- COLMAP on a synthetic colon
+
+
+def test_synthetic_colon_registers_with_small_ate(colon_run: Path) -> None:
+    s = summary(colon_run)
+    assert s["registered_fraction"] >= 0.9, s
+    assert s["ate_percent_of_path"] <= 1.0, s
+    assert s["metric"] and s["aligned_to_gt"] and s["intrinsics"] == "fixed"
+    assert s["mean_reprojection_px"] < 2.0 and s["mean_track_length"] > 2
+    for key in ("models", "mean_points_per_frame", "rre_deg", "ate_mm", "seconds"):
+        assert key in s
+
+
+def test_outputs_follow_the_file_contracts(colon: Path, colon_run: Path) -> None:
+    folder = colon_run / "02_poses"
+    for name in (
+        "cameras.json",
+        "points.ply",
+        "transforms.json",
+        "sparse/cameras.txt",
+        "sparse/images.txt",
+        "sparse/points3D.txt",
+    ):
+        assert (folder / name).is_file(), name
+    assert not (folder / "colmap").exists(), "the scratch database is removed"
+    view = PosesView(folder)
+    k = Intrinsics.load(colon / "intrinsics.json")
+    assert (view.intrinsics.fx, view.intrinsics.cx, view.intrinsics.cy) == (k.fx, k.cx, k.cy)
+    assert view.metric and view.file.units == "mm"
+    assert len(view.file.frames) == 20
+    # the sparse points are in the GT frame (mm): inside the synthetic lumen, near the path
+    points = view.points()
+    assert len(points) > 100
+    centres = view.centres()
+    dist = np.linalg.norm(points[:, None, :] - centres[None], axis=2).min(1)
+    assert np.median(dist) < 40.0
+    # the COLMAP model and transforms.json hold the same poses as cameras.json
+    model = read_colmap_model(folder / "sparse")
+    nerf = read_transforms_json(folder / "transforms.json")
+    for i in view.registered:
+        name = f"{i:06d}.png"
+        assert np.allclose(model.c2w[name], view.c2w[i], atol=1e-6)
+        assert np.allclose(nerf.c2w[name], view.c2w[i], atol=1e-9)
+    tj = json.loads((folder / "transforms.json").read_text())
+    assert (folder / tj["frames"][0]["file_path"]).resolve().is_file()
+    assert np.allclose(
+        np.array(tj["frames"][0]["transform_matrix"])[:3, 1:3],
+        -view.c2w[view.registered[0]][:3, 1:3],
+    )  # OpenGL: y and z flipped
+    assert tj["cx"] == pytest.approx(k.cx + 0.5) and tj["fl_x"] == pytest.approx(k.fx)
+
+
+def test_second_colmap_run_gives_identical_poses(colon_run: Path, colon_rerun: Path) -> None:
+    first = CamerasFile.model_validate_json((colon_run / "02_poses/cameras.json").read_text())
+    second = CamerasFile.model_validate_json((colon_rerun / "02_poses/cameras.json").read_text())
+    assert first.frames == second.frames
+
+
+def test_frames_left_out_join_the_model_again(colon_rerun: Path, tmp_path: Path) -> None:
+    """The merge step: continuing a model with relaxed registration adds the missing frames."""
+    import pycolmap
+
+    from stages.colmap_sfm import continue_mapping
+    from stages.ingest import IngestView
+
+    folder = colon_rerun / "02_poses"
+    shutil.copy(folder / "colmap" / "database.db", tmp_path / "database.db")
+    model = pycolmap.Reconstruction(str(folder / "sparse"))
+    for frame_id in sorted(model.reg_frame_ids())[-5:]:
+        model.deregister_frame(frame_id)
+    assert model.num_reg_images() == 15
+    ingest = IngestView(colon_rerun / "01_ingest")
+    quiet = lambda label, total: nullcontext(lambda n=1, info=None: None)  # noqa: E731
+    merged = continue_mapping(
+        tmp_path / "database.db",
+        model,
+        ingest.folder / "frames",
+        tmp_path,
+        PosesConfig(),
+        ingest.intrinsics,
+        20,
+        quiet,
+    )
+    assert merged.num_reg_images() == 20
+
+
+def test_source_gt_reproduces_the_ground_truth_exactly(colon: Path, tmp_path: Path) -> None:
+    code, _ = run(None, colon, tmp_path, "poses.source=gt")
+    assert code == 0
+    view = PosesView(tmp_path / "colon" / "02_poses")
+    gt = gt_poses(colon)
+    assert view.registered == list(range(20))
+    for i in view.registered:
+        assert np.array_equal(view.c2w[i], gt[i])
+    assert view.intrinsics == Intrinsics.load(colon / "intrinsics.json").model_copy(
+        update={"dist": None}
+    )
+    s = summary(tmp_path / "colon")
+    assert s["source"] == "gt" and s["metric"] and s["ate_mm"] < 1e-9
+
+
+def test_source_file_reads_a_colmap_model_and_a_transforms_json(
+    colon: Path, colon_run: Path, tmp_path: Path
+) -> None:
+    reference = PosesView(colon_run / "02_poses")
+    for path in (colon_run / "02_poses" / "sparse", colon_run / "02_poses" / "transforms.json"):
+        wd = tmp_path / path.name
+        code, _ = run(None, colon, wd, "poses.source=file", f"poses.file={path}")
+        assert code == 0, path
+        view = PosesView(wd / "colon" / "02_poses")
+        assert view.registered == reference.registered
+        for i in view.registered:
+            assert np.allclose(view.c2w[i], reference.c2w[i], atol=1e-5)
+        assert view.intrinsics.fx == pytest.approx(reference.intrinsics.fx)
+        assert view.intrinsics.cx == pytest.approx(reference.intrinsics.cx)
+
+
+def test_source_file_missing_is_one_line(colon: Path, tmp_path: Path, capsys) -> None:
+    missing = f"poses.file={tmp_path / 'nope'}"
+    code, out = run(capsys, colon, tmp_path, "poses.source=file", missing)
+    assert_one_line_failure(code, out, "poses.file not found")
+    assert not (tmp_path / "colon" / "02_poses").exists()
+
+
+# ---------------------------------------------------------------- the quality gate
+
+
+def test_frames_of_pure_noise_fail_the_quality_gate(tmp_path: Path, capsys) -> None:
+    rng = np.random.default_rng(0)
+    folder = tmp_path / "noise"
+    folder.mkdir()
+    for i in range(12):
+        grey = rng.integers(0, 256, (96, 128), dtype=np.uint8)
+        grey = cv2.GaussianBlur(grey, (3, 3), 0)  # independent noise, still SIFT-rich
+        cv2.imwrite(str(folder / f"{i:03d}.png"), cv2.merge([grey, grey, grey]))
+    wd = tmp_path / "wd"
+    code, out = run(capsys, folder, wd, "ingest.drop_blurred=false")
+    assert_one_line_failure(code, out, "registered 0/12 frames (0%) < 70%")
+    assert code == StageFailed.exit_code
+    assert "ingest.stride" in out and "--intrinsics" in out
+    assert (wd / "noise" / "01_ingest").is_dir()
+    assert not list((wd / "noise").glob("*02_poses*")), "no 02_poses folder, not even a temp one"
+
+
+# ---------------------------------------------------------------- units: conventions, metrics
+
+
+def test_metrics_are_zero_after_a_similarity_and_see_noise() -> None:
+    rng = np.random.default_rng(1)
+    gt = {
+        i: look_at(
+            np.array([0.0, 0.0, 2.0 * i]),
+            np.array([0.3, 0.0, 2.0 * i + 10]),
+            np.array([0.0, -1.0, 0.0]),
+        )
+        for i in range(10)
+    }
+    angle = 0.7
+    R = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+    est = {i: apply_sim3(0.25, R, np.array([1.0, 2.0, 3.0]), c) for i, c in gt.items()}
+    m = pose_metrics(est, gt)
+    assert m["ate"] < 1e-9 and m["rre_deg"] < 1e-6 and m["sim3_scale"] == pytest.approx(4.0)
+    assert m["gt_path_length"] == pytest.approx(18.0)
+    noisy = {i: c.copy() for i, c in est.items()}
+    for c in noisy.values():
+        c[:3, 3] += rng.normal(0, 0.01, 3)
+    assert 0 < pose_metrics(noisy, gt)["ate_percent_of_path"] < 2.0
+    centres = np.array([c[:3, 3] for c in gt.values()])
+    assert ate_rmse(centres, centres) < 1e-12 and path_length(centres) == pytest.approx(18.0)
+    assert relative_rotation_error_deg(list(gt.values()), list(gt.values())) == 0.0
+
+
+def test_colmap_text_model_and_transforms_json_round_trip(tmp_path: Path) -> None:
+    k = Intrinsics(width=320, height=256, fx=150.0, fy=151.0, cx=159.5, cy=127.5)
+    poses = {
+        f"{i:06d}.png": look_at(
+            np.array([i, 0.5 * i, 0.0]), np.array([i, 0.0, 10.0]), np.array([0.0, -1.0, 0.0])
+        )
+        for i in range(5)
+    }
+    write_text_model(tmp_path / "sparse", CameraModel.pinhole(k), poses)
+    model = read_colmap_model(tmp_path / "sparse")
+    assert model.camera.intrinsics().model_dump() == pytest.approx(k.model_dump())
+    for name, c2w in poses.items():
+        assert np.allclose(model.c2w[name], c2w, atol=1e-9)
+    frames = [(f"images/{n}", None, c) for n, c in poses.items()]
+    write_transforms_json(tmp_path / "transforms.json", CameraModel.pinhole(k), frames)
+    back = read_transforms_json(tmp_path / "transforms.json")
+    assert back.camera is not None and back.camera.intrinsics().cx == pytest.approx(k.cx)
+    for name, c2w in poses.items():
+        assert np.allclose(back.c2w[name], c2w)
+    # known distortion: an OPENCV camera with the same pinhole part
+    distorted = CameraModel.from_intrinsics(k.model_copy(update={"dist": [0.1, 0.01, 0, 0, 0]}))
+    assert distorted.model == "OPENCV" and distorted.params[4:] == [0.1, 0.01, 0.0, 0.0]
+    assert distorted.intrinsics().model_dump() == pytest.approx(k.model_dump())
+    # half resolution: focal lengths halve, the pixel-centre convention is kept
+    half = CameraModel.pinhole(k).scaled(160, 128).intrinsics()
+    assert half.model_dump() == pytest.approx(k.scaled(160, 128).model_dump())
+
+
+def test_file_images_are_matched_to_frames_by_number(tmp_path: Path) -> None:
+    class FakeIngest:
+        folder = tmp_path
+        frames = [
+            type("F", (), {"index": i, "source_index": 2 * i, "file": f"frames/{i:06d}.png"})
+            for i in range(4)
+        ]
+
+    (tmp_path / "frames.json").write_text(json.dumps({"source": {"path": "/nonexistent"}}))
+    eye = np.eye(4)
+    by_number = PoseSet(None, {f"frame_{2 * i + 0:05d}.jpg": eye * (i + 1) for i in range(4)})
+    assert sorted(match_frames(by_number, FakeIngest())) == [0, 1, 2, 3]
+    by_name = PoseSet(None, {f"{i:06d}.png": eye for i in (1, 3)})
+    assert sorted(match_frames(by_name, FakeIngest())) == [1, 3]
+    assert ranges([0, 1, 2, 7, 9, 10]) == "0-2, 7, 9-10" and ranges([]) == ""
+
+
+# ---------------------------------------------------------------- slow: bigger and real inputs
+
+
+@pytest.mark.slow
+def test_synthetic_colon_60_frames(tmp_path: Path) -> None:
+    from stages.synth import SynthConfig, generate_case
+
+    generate_case(tmp_path / "colon60", SynthConfig(seed=0, frames=60, width=320, height=256))
+    code, _ = run(None, tmp_path / "colon60", tmp_path / "wd")
+    assert code == 0
+    s = summary(tmp_path / "wd" / "colon60")
+    assert s["registered_fraction"] >= 0.9 and s["ate_percent_of_path"] <= 1.0, s
+
+
+@pytest.mark.slow
+def test_real_c3vd_frames_register(shared_data: Path, tmp_path: Path) -> None:
+    rgb = shared_data / "c3vd_v3_preview" / "rgb"
+    code, _ = run(None, rgb, tmp_path)
+    assert code == 0
+    s = summary(tmp_path / "rgb")
+    assert s["total"] == 75 and s["registered_fraction"] >= 0.8, s
+    assert not s["metric"] and s["intrinsics"] == "estimated"
+
+
+@pytest.mark.slow
+def test_laparoscopy_video_registers_or_fails_in_one_line(
+    shared_data: Path, tmp_path: Path, capsys
+) -> None:
+    video = shared_data / "laparoscopy_rvimlab" / "endo.mp4"
+    code, out = run(capsys, video, tmp_path)
+    if code == 0:
+        assert summary(tmp_path / "endo")["registered_fraction"] >= 0.7
+    else:
+        assert_one_line_failure(code, out, "registered")
+        assert code == StageFailed.exit_code
