@@ -23,8 +23,8 @@ class Lighting:
     exposure: float
     ambient: float = 0.02
     specular: bool = True
-    shininess: float = 200.0
-    specular_strength: float = 0.8
+    shininess: float = 600.0
+    specular_strength: float = 3.0  # wet mucosa: small highlights that clip, as in real scopes
     micro_tilt: float = 0.06  # wet micro-relief tilting the normals seen by highlights only
     gamma: float = 2.2
 
