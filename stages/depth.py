@@ -190,7 +190,9 @@ def evaluate(
     if rgbs:
         ids = sorted(rgbs)
         per = {
-            i: image_metrics(rgbs[i], ingest.image(i).astype(np.float32) / 255.0, ingest.mask(i) > 127)
+            i: image_metrics(
+                rgbs[i], ingest.image(i).astype(np.float32) / 255.0, ingest.mask(i) > 127
+            )
             for i in ids
         }
         metrics["heldout_frames"] = ids
@@ -203,7 +205,9 @@ def evaluate(
 def colourise(depth: np.ndarray, lo: float, hi: float) -> np.ndarray:
     """Depth as a turbo colour map (RGB uint8), invalid pixels black."""
     x = np.clip((depth - lo) / max(hi - lo, 1e-9), 0, 1)
-    rgb = cv2.cvtColor(cv2.applyColorMap((x * 255).astype(np.uint8), cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB)
+    rgb = cv2.cvtColor(
+        cv2.applyColorMap((x * 255).astype(np.uint8), cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB
+    )
     rgb[depth <= 0] = 0
     return rgb
 

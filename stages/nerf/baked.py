@@ -61,7 +61,9 @@ class BakedRenderer:
         idx = (pts - self.origin) / self.spacing  # fractional node index (x, y, z)
         norm = 2 * idx / self.extent.to(pts.device) - 1
         g = norm[:, [2, 1, 0]].view(1, 1, 1, -1, 3)  # grid_sample wants (z, y, x) for (X, Y, Z)
-        out = F.grid_sample(self.sigma, g, mode="bilinear", padding_mode="zeros", align_corners=True)
+        out = F.grid_sample(
+            self.sigma, g, mode="bilinear", padding_mode="zeros", align_corners=True
+        )
         return out.view(-1)
 
     @torch.no_grad()
