@@ -194,6 +194,36 @@ def clean(
     out.print(f"removed {len(removed)} folder(s): {', '.join(removed) or 'none'}")
 
 
+@app.command()
+def export(
+    case: Annotated[str, typer.Argument(help="Case folder or name under --workdir.")],
+    format_: Annotated[str, typer.Option("--format", help="nerfstudio | colmap | endonerf | ply")],
+    out_dir: Annotated[
+        Path | None,
+        typer.Option("--out", help="Output folder (default: <case>/exports/<format>)."),
+    ] = None,
+    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    symlink: Annotated[
+        bool, typer.Option(help="nerfstudio / colmap: symlink the images instead of copying.")
+    ] = False,
+    endonerf_axes: Annotated[
+        str,
+        typer.Option(
+            help="endonerf: rotation columns of poses_bounds.npy: llff (down, right, back) | "
+            "opengl (right, up, back) | opencv (right, down, forward)."
+        ),
+    ] = "llff",
+) -> None:
+    """Export a case's poses, frames, depth and mesh for nerfstudio, COLMAP, EndoNeRF or PLY."""
+    from stages.export import export_case
+
+    case_dir = resolve_case(case, workdir)
+    result = export_case(case_dir, format_, out_dir, symlink=symlink, endonerf_axes=endonerf_axes)
+    out.print(f"exported {result.frames} frame(s) as {result.format} to {result.out}")
+    for note in result.notes:
+        out.print(f"  {note}", markup=False, highlight=False)
+
+
 @app.command("stages")
 def list_stages(
     yaml_: Annotated[bool, typer.Option("--yaml", help="Print configs/default.yaml.")] = False,

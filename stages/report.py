@@ -3,7 +3,7 @@
 Everything is inlined, so the page opens offline and can be mailed as one file: images are base64
 PNG / JPEG data URIs, the CSS is inline, the depth preview video (when small enough) is an mp4
 data URI, and the 3D mesh viewer is trimesh's three.js page (trimesh bundles three.js inside
-its package, no CDN) placed in a sandboxed `<iframe srcdoc>`. Static renderings of the mesh are
+its package, no CDN) placed in an `<iframe srcdoc>`. Static renderings of the mesh are
 always included as well, for print and for browsers without WebGL.
 
 What the page shows: the case (input, frames, registered ratio, metric or not, ground-truth
@@ -53,11 +53,14 @@ DEPTH_METRICS = (
     ("delta2", "δ < 1.25²", True),
     ("delta3", "δ < 1.25³", True),
 )
+#: Protocol keys of a depth metrics block (`sequence_scaled` and `global_scaled` are one thing).
 DEPTH_PROTOCOLS = (
     ("median_scaled", "per-frame median scaling"),
+    ("sequence_scaled", "one scale for the sequence"),
     ("global_scaled", "one scale for the sequence"),
 )
 TISSUE_RGB = (214, 146, 138)
+NEAREST = {"interpolation": "nearest", "interpolation_stage": "rgba"}
 
 
 class ReportConfig(StageConfig):
@@ -297,9 +300,7 @@ def render_report(
             info.sections.setdefault(key, content is not None)
             if content is None:
                 content = not_available("no artefacts for this section")
-        body.append(
-            f'<section id="{key}"><h2>{html.escape(title)}</h2>\n{content}\n</section>'
-        )
+        body.append(f'<section id="{key}"><h2>{html.escape(title)}</h2>\n{content}\n</section>')
     name = data.case.name if data.case else data.case_dir.name
     title = cfg.title or f"endopipe report: {name}"
     nav = "".join(f'<a href="#{k}">{html.escape(t.split(":")[0])}</a>' for k, t, _ in sections)
@@ -350,7 +351,9 @@ def fmt(value: Any, unit: str = "") -> str:
     elif isinstance(value, float):
         if not math.isfinite(value):
             return '<span class="muted">&mdash;</span>'
-        if abs(value) >= 1000:
+        if value != 0 and abs(value) < 1e-4:
+            text = f"{value:.2g}"
+        elif abs(value) >= 1000:
             text = f"{value:,.0f}"
         elif abs(value) >= 100:
             text = f"{value:.1f}"
@@ -436,7 +439,7 @@ def _figure(width: float, height: float):
 
 def figure_uri(fig, fmt_: str = "png", quality: int = 88) -> str:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=fig.dpi, bbox_inches="tight", facecolor="white")
+    fig.savefig(buf, format="png", dpi=fig.dpi, facecolor="white")  # laid out by tight_layout
     if fmt_ == "png":
         return f"data:image/png;base64,{base64.b64encode(buf.getvalue()).decode()}"
     img = cv2.imdecode(np.frombuffer(buf.getvalue(), np.uint8), cv2.IMREAD_COLOR)
@@ -500,15 +503,20 @@ def section_summary(data: CaseData, info: ReportInfo) -> str:
     if isinstance(dm, dict) and dm.get("abs_rel") is not None:
         card("Depth AbsRel", fmt(dm.get("abs_rel")), "per-frame median scaling")
     mm = _flat_numbers(data.mesh_metrics or {})
+    mm = {k: v for k, v in mm.items() if "pct" not in k and "median" not in k}
     chamfer = _first(mm, ("chamfer",))
     fscore = _first(mm, ("fscore", "f_score", "f-score"))
     if chamfer is not None:
-        card("Chamfer", fmt(chamfer[1], data.units if data.cameras else ""), chamfer[0])
+        card("Chamfer", fmt(chamfer[1], "mm"), "mean of both directions")
     if fscore is not None:
-        card("F-score", fmt(fscore[1]), fscore[0])
+        tau = _first(mm, ("threshold", "tau"))
+        note = f"at {tau[1]:.3g} mm" if tau is not None else fscore[0]
+        card("F-score", fmt(fscore[1]), html.escape(note))
     if pos.get("ate_mm") is not None:
-        card("ATE", fmt(pos.get("ate_mm"), "mm"), "after sim(3) alignment")
-    psnr = (data.depth_metrics or {}).get("psnr", (data.nerf_metrics or {}).get("psnr"))
+        from_gt = pos.get("source") == "gt"
+        note = "poses are the ground truth" if from_gt else "after sim(3) alignment"
+        card("ATE", fmt(pos.get("ate_mm"), "mm"), note)
+    psnr = image_metric(data, "psnr")
     if psnr is not None:
         card("PSNR", fmt(psnr, "dB"), "held-out frames")
 
@@ -627,7 +635,7 @@ def section_input(data: CaseData, info: ReportInfo) -> str | None:
                     uri,
                     "Contact sheet: selected frames; outside the field of view dimmed, "
                     "specular highlights in magenta (masked out).",
-                    "wide",
+                    "medium",
                 )
             )
     if ing:
@@ -715,8 +723,12 @@ def plot_trajectory(
     q = centres[::step]
     d = views[::step] * 0.06 * scale
     ax3.quiver(*q.T, *d.T, color="#2c3e50", lw=0.8, arrow_length_ratio=0.25)
-    ranges = np.ptp(allp, axis=0)
-    ax3.set_box_aspect(np.maximum(ranges, 1e-3 * max(ranges.max(), 1e-9)))
+    mid = (allp.max(0) + allp.min(0)) / 2
+    half = 0.55 * scale
+    ax3.set_xlim(mid[0] - half, mid[0] + half)
+    ax3.set_ylim(mid[1] - half, mid[1] + half)
+    ax3.set_zlim(mid[2] - half, mid[2] + half)
+    ax3.set_box_aspect((1, 1, 1))
     ax3.set_xlabel(f"x ({units})", fontsize=8)
     ax3.set_ylabel(f"y ({units})", fontsize=8)
     ax3.set_zlabel(f"z ({units})", fontsize=8)
@@ -743,7 +755,7 @@ def plot_trajectory(
             ax2.plot([], [], color="#c0392b", lw=0.8, alpha=0.5, label="centre line ± radius")
     p2 = plane(centres)
     ax2.plot(p2[:, 0], p2[:, 1], color="#1f4e79", lw=1.0, alpha=0.6)
-    sc = ax2.scatter(p2[:, 0], p2[:, 1], c=colours, cmap="viridis", s=12, zorder=3)
+    sc = ax2.scatter(p2[:, 0], p2[:, 1], c=colours, cmap="viridis", s=12, zorder=3, label="cameras")
     ax2.set_aspect("equal", adjustable="datalim")
     ax2.set_xlabel(f"main axis ({units})", fontsize=8)
     ax2.set_ylabel(f"second axis ({units})", fontsize=8)
@@ -771,6 +783,19 @@ def plot_trajectory(
     ax_r.grid(alpha=0.3)
     fig.tight_layout()
     return figure_uri(fig)
+
+
+def _unregistered(cameras: dict | None, summary: dict) -> str:
+    if cameras is not None:
+        missing = [f["index"] for f in cameras.get("frames", []) if not f.get("registered")]
+        runs: list[str] = []
+        for i in missing:
+            if runs and runs[-1].split("-")[-1] == str(i - 1):
+                runs[-1] = f"{runs[-1].split('-')[0]}-{i}"
+            else:
+                runs.append(str(i))
+        return ", ".join(runs) or "none"
+    return str(summary.get("unregistered") or "none")
 
 
 def section_poses(data: CaseData, info: ReportInfo) -> str | None:
@@ -807,7 +832,7 @@ def section_poses(data: CaseData, info: ReportInfo) -> str | None:
                 f"{fmt(pos.get('registered'))} of {fmt(pos.get('total'))} "
                 f"({fmt(100 * pos.get('registered_fraction', 0.0))}%)",
             ),
-            ("Unregistered frames", html.escape(str(pos.get("unregistered") or "none"))),
+            ("Unregistered frames", html.escape(_unregistered(cams, pos))),
             ("Camera model", html.escape(f"{pos.get('camera_model', '—')}")),
             ("Sparse points", fmt(pos.get("points"))),
         ]
@@ -829,7 +854,7 @@ def section_poses(data: CaseData, info: ReportInfo) -> str | None:
             ("Lumen model", html.escape(str(cl.get("kind", "—")))),
             ("Centre line length", fmt(cl.get("length"), u)),
             ("Mean radius", fmt(cl.get("mean_radius"), u)),
-            ("Radius from", html.escape(str(cl.get("radius_note") or cl.get("radius_source")))),
+            ("Radius from", fmt(cl.get("radius_note") or cl.get("radius_source"))),
         ]
         if cl.get("centerline_mean_dist_pct_of_radius") is not None:
             rows += [
@@ -933,8 +958,10 @@ def section_nerf(data: CaseData, info: ReportInfo) -> str | None:
     if s:
         rows += [
             ("Steps", fmt(s.get("steps"))),
-            ("Training / held-out frames", f"{fmt(s.get('train_frames'))} / "
-             f"{fmt(s.get('heldout_frames'))}"),
+            (
+                "Training / held-out frames",
+                f"{fmt(s.get('train_frames'))} / {fmt(s.get('heldout_frames'))}",
+            ),
             ("Training time", fmt(s.get("train_s"), "s")),
             ("Throughput", fmt(s.get("rays_per_s"), "rays/s")),
             ("Render time per frame", fmt(s.get("render_ms"), "ms")),
@@ -1008,7 +1035,9 @@ def per_frame_series(per_frame: Any, metric: str = "abs_rel") -> dict[str, tuple
                 x = sub.get("index") or index or list(range(len(y)))
                 out[label] = (list(x), list(y))
             elif isinstance(sub, list) and sub and isinstance(sub[0], dict):
-                out.update({label: v for v in per_frame_series(sub, metric).values()})
+                inner = per_frame_series(sub, metric)
+                if inner:
+                    out[label] = next(iter(inner.values()))
         if not out and isinstance(per_frame.get(metric), list):
             y = per_frame[metric]
             out["per frame"] = (list(index or range(len(y))), list(y))
@@ -1033,11 +1062,13 @@ def per_frame_series(per_frame: Any, metric: str = "abs_rel") -> dict[str, tuple
 
 
 def plot_per_frame(series: dict[str, tuple[list, list]], metric: str = "AbsRel") -> str:
-    fig = _figure(11.0, 2.8)
+    fig = _figure(11.0, 2.4)
     ax = fig.add_subplot(1, 1, 1)
     for label, (x, y) in series.items():
         y_arr = np.asarray(y, dtype=np.float64)
-        ax.plot(x, y_arr, marker="o", ms=2.5, lw=1.0, label=f"{label} (mean {np.nanmean(y_arr):.3g})")
+        ax.plot(
+            x, y_arr, marker="o", ms=2.5, lw=1.0, label=f"{label} (mean {np.nanmean(y_arr):.3g})"
+        )
     ax.set_xlabel("frame", fontsize=8)
     ax.set_ylabel(metric, fontsize=8)
     ax.set_ylim(bottom=0)
@@ -1121,33 +1152,34 @@ def plot_depth_preview(rows: list[PreviewRow], units: str, error_max: float) -> 
     h, w = rows[0].depth.shape[:2]
     tile_w = 3.1
     fig = _figure(tile_w * ncols + 0.8, len(rows) * tile_w * h / w + 0.5)
-    turbo = colormaps["turbo"].copy()
-    turbo.set_bad("black")
-    inferno = colormaps["inferno"].copy()
-    inferno.set_bad("#202020")
+    turbo = colormaps["turbo"].with_extremes(bad="black")
+    inferno = colormaps["inferno"].with_extremes(bad="#202020")
     for r_i, row in enumerate(rows):
         valid = (row.depth > 0) & np.isfinite(row.depth)
         ref = row.gt[row.gt > 0] if row.gt is not None and (row.gt > 0).any() else None
         ref = ref if ref is not None else row.depth[valid]
-        lo, hi = (np.percentile(ref, [2, 98]) if ref.size else (0.0, 1.0))
+        lo, hi = np.percentile(ref, [2, 98]) if ref.size else (0.0, 1.0)
         hi = hi if hi > lo else lo + 1e-6
         axes = [fig.add_subplot(len(rows), ncols, r_i * ncols + c + 1) for c in range(ncols)]
         src = f", source {row.source_index}" if row.source_index is not None else ""
         if row.rgb is not None:
-            axes[0].imshow(row.rgb)
+            axes[0].imshow(row.rgb, **NEAREST)
         else:
             axes[0].text(0.5, 0.5, "no image", ha="center", va="center", color="0.5")
         axes[0].set_title(f"frame {row.index}{src}", fontsize=8)
         label = "depth (median-scaled to GT)" if row.scale is not None else "estimated depth"
-        im = axes[1].imshow(np.ma.masked_where(~valid, row.depth), cmap=turbo, vmin=lo, vmax=hi)
+        im = axes[1].imshow(
+            np.ma.masked_where(~valid, row.depth), cmap=turbo, vmin=lo, vmax=hi, **NEAREST
+        )
         axes[1].set_title(label, fontsize=8)
         cb = fig.colorbar(im, ax=axes[1], fraction=0.046, pad=0.02)
         cb.ax.tick_params(labelsize=6)
         cb.set_label(units, fontsize=6)
         if has_gt:
             if row.gt is not None:
-                im = axes[2].imshow(np.ma.masked_where(row.gt <= 0, row.gt), cmap=turbo,
-                                    vmin=lo, vmax=hi)
+                im = axes[2].imshow(
+                    np.ma.masked_where(row.gt <= 0, row.gt), cmap=turbo, vmin=lo, vmax=hi, **NEAREST
+                )
                 cb = fig.colorbar(im, ax=axes[2], fraction=0.046, pad=0.02)
                 cb.ax.tick_params(labelsize=6)
                 axes[2].set_title("ground-truth depth", fontsize=8)
@@ -1155,7 +1187,7 @@ def plot_depth_preview(rows: list[PreviewRow], units: str, error_max: float) -> 
                 axes[2].text(0.5, 0.5, "no GT for this frame", ha="center", va="center")
             if row.error is not None:
                 err = np.ma.masked_invalid(row.error)
-                im = axes[3].imshow(err, cmap=inferno, vmin=0, vmax=error_max)
+                im = axes[3].imshow(err, cmap=inferno, vmin=0, vmax=error_max, **NEAREST)
                 cb = fig.colorbar(im, ax=axes[3], fraction=0.046, pad=0.02)
                 cb.ax.tick_params(labelsize=6)
                 axes[3].set_title(f"abs-rel error (mean {np.nanmean(row.error):.3f})", fontsize=8)
@@ -1182,15 +1214,15 @@ def section_depth(data: CaseData, info: ReportInfo) -> str | None:
             "stricter and rewards a 3D-consistent reconstruction.</p>"
         )
         parts.append(depth_metric_table(dm, data.units))
+        if isinstance(dm.get("frames"), int):
+            parts.append(f'<p class="note">{dm["frames"]} frame(s) evaluated.</p>')
         img_rows = []
         for key, label, unit in (("psnr", "PSNR", "dB"), ("ssim", "SSIM", "")):
-            value = dm.get(key)
-            if value is None and key == "psnr":
-                value = (data.nerf_metrics or {}).get("psnr")
+            value = image_metric(data, key)
             img_rows.append((label, fmt(value, unit) if value is not None else "not available"))
-        for key in ("frames", "evaluated_frames", "gt_kind"):
-            if dm.get(key) is not None:
-                img_rows.append((key.replace("_", " "), fmt(dm.get(key))))
+        held = dm.get("heldout_frames")
+        if isinstance(held, list):
+            img_rows.append(("Held-out frames", html.escape(", ".join(map(str, held)) or "none")))
         parts.append("<h3>Image quality (held-out frames)</h3>" + kv_table(img_rows))
         series = per_frame_series(dm.get("per_frame"))
         if series:
@@ -1203,22 +1235,7 @@ def section_depth(data: CaseData, info: ReportInfo) -> str | None:
         )
         parts.append("<h3>Depth accuracy</h3>" + not_available(reason))
 
-    files = depth_files(folder)
-    picks = pick_frames(sorted(files), data.cfg.max_preview_frames)
-    if picks:
-        rows = [preview_row(data, i, files[i]) for i in picks]
-        if data.cfg.preview_width and rows[0].depth.shape[1] > data.cfg.preview_width:
-            rows = [_shrink_row(r, data.cfg.preview_width) for r in rows]
-        uri = plot_depth_preview(rows, data.units, data.cfg.error_max)
-        cap = "Depth previews: RGB | depth (turbo colour map, near = blue)"
-        if any(r.gt is not None for r in rows):
-            cap += (
-                " | ground truth (same colour scale) | abs-rel error after per-frame median "
-                f"scaling (0 to {data.cfg.error_max:g})"
-            )
-        parts.append("<h3>Previews</h3>" + figure_html(uri, cap + ".", "wide"))
-    else:
-        parts.append("<h3>Previews</h3>" + not_available("no depth maps in 05_depth/depth/"))
+    parts.append("<h3>Previews</h3>" + depth_previews(data, folder))
 
     video = data.file("depth", "preview.mp4")
     if video is not None and data.cfg.include_video:
@@ -1241,6 +1258,41 @@ def section_depth(data: CaseData, info: ReportInfo) -> str | None:
     return "".join(parts)
 
 
+def depth_previews(data: CaseData, folder: Path) -> str:
+    files = depth_files(folder)
+    picks = pick_frames(sorted(files), data.cfg.max_preview_frames)
+    if not picks:
+        return not_available("no depth maps in 05_depth/depth/")
+    rows, bad = [], []
+    for i in picks:
+        try:
+            row = preview_row(data, i, files[i])
+        except Exception as e:  # noqa: BLE001 - one unreadable map costs one row
+            bad.append(f"frame {i}: {_one_line(e)}")
+            continue
+        if row.depth.ndim != 2:
+            bad.append(f"frame {i}: depth map of shape {row.depth.shape}")
+            continue
+        rows.append(row)
+    note = not_available("; ".join(bad)) if bad else ""
+    if not rows:
+        return note
+    shapes = {r.depth.shape for r in rows}
+    if len(shapes) > 1:
+        rows = [r for r in rows if r.depth.shape == rows[0].depth.shape]
+    if data.cfg.preview_width and rows[0].depth.shape[1] > data.cfg.preview_width:
+        rows = [_shrink_row(r, data.cfg.preview_width) for r in rows]
+    uri = plot_depth_preview(rows, data.units, data.cfg.error_max)
+    cap = "Depth previews: RGB | depth (turbo colour map, near = blue)"
+    if any(r.gt is not None for r in rows):  # four columns
+        cap += (
+            " | ground truth (same colour scale) | abs-rel error after per-frame median "
+            f"scaling (0 to {data.cfg.error_max:g})"
+        )
+    has_gt = any(r.gt is not None for r in rows)
+    return figure_html(uri, cap + ".", "wide" if has_gt else "medium") + note
+
+
 def _shrink_row(row: PreviewRow, width: int) -> PreviewRow:
     h, w = row.depth.shape[:2]
     size = (width, max(1, round(h * width / w)))
@@ -1255,6 +1307,16 @@ def _shrink_row(row: PreviewRow, width: int) -> PreviewRow:
 
 
 # --- mesh -----------------------------------------------------------------------------------------
+
+
+def image_metric(data: CaseData, key: str) -> float | None:
+    """PSNR / SSIM of held-out frames: the depth stage's, else the NeRF stage's."""
+    for block in (data.depth_metrics or {}, data.nerf_metrics or {}):
+        for k in (key, f"heldout_{key}"):
+            value = block.get(k)
+            if isinstance(value, int | float) and not isinstance(value, bool):
+                return float(value)
+    return None
 
 
 def _flat_numbers(data: dict, prefix: str = "") -> dict[str, float]:
@@ -1297,54 +1359,63 @@ def mesh_metric_rows(metrics: dict, units: str) -> list[tuple[str, str]]:
         low = key.lower()
         label = next((lab for needle, lab in MESH_LABELS if needle in low), None)
         shown = key if label is None else f"{label} [{key}]"
-        unit = units if any(n in low for n in ("chamfer", "threshold", "accuracy", "complet")) else ""
-        if any(n in low for n in ("fscore", "f_score", "precision", "recall")):
+        if "pct" in low or "percent" in low:
+            unit = "%"
+        elif any(n in low for n in ("fscore", "f_score", "precision", "recall", "scale", "_s")):
+            unit = ""
+        elif any(n in low for n in ("chamfer", "threshold", "accuracy", "complet", "radius")):
+            unit = units
+        elif "depth" in low:
+            unit = units
+        else:
             unit = ""
         if float(value).is_integer() and any(n in low for n in ("vertices", "faces", "count")):
             rows.append((shown, fmt(int(value))))
         else:
             rows.append((shown, fmt(value, unit)))
     for key, value in metrics.items():
-        if isinstance(value, str | bool):
-            rows.append((key, fmt(value)))
+        if isinstance(value, str | bool) and key not in ("evaluated", "reason"):
+            rows.append((key.replace("_", " "), fmt(value)))
     return rows
 
 
 def decimate(
     vertices: np.ndarray, faces: np.ndarray, max_faces: int, colors: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """At most `max_faces` faces: vertex clustering on a grid whose cell is found by bisection
-    (dependency-free; keeps the shape, merges detail). Colours are averaged per cluster."""
+    """At most `max_faces` faces by vertex clustering on a grid (dependency-free; keeps the
+    shape, merges detail). The cell starts where a surface of this area would give about
+    `max_faces` faces and grows until it does. Colours are averaged per cluster."""
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
     if len(f) <= max_faces:
         return v, f, colors
+    vmin = v.min(0)
     diag = float(np.linalg.norm(np.ptp(v, axis=0))) or 1.0
+    tri = v[f]
+    area = 0.5 * float(
+        np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    )
+    del tri
+    cell = max(math.sqrt(2.0 * area / max_faces), diag * 1e-5)
 
-    def cluster(cell: float):
-        keys = np.floor((v - v.min(0)) / cell).astype(np.int64)
-        _, inv = np.unique(keys, axis=0, return_inverse=True)
-        inv = inv.reshape(-1)
-        nf = inv[f]
+    def cluster(size: float) -> tuple[np.ndarray, np.ndarray]:
+        q = np.floor((v - vmin) / size).astype(np.int64)
+        dims = q.max(0) + 1
+        key = (q[:, 0] * dims[1] + q[:, 1]) * dims[2] + q[:, 2]
+        _, inv = np.unique(key, return_inverse=True)
+        nf = inv.reshape(-1)[f]
         keep = (nf[:, 0] != nf[:, 1]) & (nf[:, 1] != nf[:, 2]) & (nf[:, 0] != nf[:, 2])
-        nf = nf[keep]
-        if len(nf):
-            _, first = np.unique(np.sort(nf, axis=1), axis=0, return_index=True)
-            nf = nf[np.sort(first)]
-        return inv, nf
+        return inv.reshape(-1), nf[keep]
 
-    lo, hi = diag * 1e-5, diag / 4
-    best = None
-    for _ in range(18):
-        mid = math.sqrt(lo * hi)
-        inv, nf = cluster(mid)
-        if len(nf) <= max_faces:
-            best, hi = (inv, nf), mid
-        else:
-            lo = mid
-    if best is None:
-        best = cluster(hi)
-    inv, nf = best
+    inv, nf = cluster(cell)
+    for _ in range(60):
+        if len(nf) <= max_faces or cell > diag:
+            break
+        cell *= 1.1
+        inv, nf = cluster(cell)
+    srt = np.sort(nf, axis=1)
+    _, first = np.unique(srt, axis=0, return_index=True)
+    nf = nf[np.sort(first)]
     n = int(inv.max()) + 1
     counts = np.bincount(inv, minlength=n).astype(np.float64)[:, None]
     nv = np.zeros((n, 3))
@@ -1393,22 +1464,26 @@ def render_mesh_view(
     colors: np.ndarray | None,
     right: np.ndarray,
     up: np.ndarray,
-    size: tuple[int, int] = (440, 330),
+    width: int = 460,
     supersample: int = 2,
 ) -> np.ndarray:
-    """An orthographic, head-lit, two-sided rendering (painter's algorithm with OpenCV)."""
-    w, h = size[0] * supersample, size[1] * supersample
+    """An orthographic, two-sided rendering (painter's algorithm with OpenCV): a head light
+    plus a key light from the upper left. The height follows the mesh's extent (clamped)."""
     fwd = np.cross(right, -up)  # camera looks along fwd, image x = right, image y = -up
-    centre = (vertices.max(0) + vertices.min(0)) / 2
-    p = vertices - centre
-    x, y, z = p @ right, -(p @ up), p @ fwd
-    span = max(float(np.ptp(x)), float(np.ptp(y)) * w / h, 1e-12)
-    s = 0.92 * w / span
+    x, y, z = vertices @ right, -(vertices @ up), vertices @ fwd
+    x = x - (x.max() + x.min()) / 2
+    y = y - (y.max() + y.min()) / 2
+    ex, ey = max(float(np.ptp(x)), 1e-12), max(float(np.ptp(y)), 1e-12)
+    height = int(np.clip(width * ey / ex, 0.3 * width, 0.9 * width))
+    w, h = width * supersample, height * supersample
+    s = 0.9 * min(w / ex, h / ey)
     px = np.stack([x * s + w / 2, y * s + h / 2], 1)
     tri = vertices[faces]
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-20)
-    shade = 0.3 + 0.7 * np.abs(n @ fwd)
+    key = -fwd + 0.6 * up - 0.5 * right
+    key /= np.linalg.norm(key)
+    shade = 0.22 + 0.5 * np.abs(n @ fwd) + 0.35 * np.abs(n @ key)
     base = (
         colors[faces].mean(1) if colors is not None else np.tile(TISSUE_RGB, (len(faces), 1))
     ).astype(np.float64)
@@ -1418,7 +1493,7 @@ def render_mesh_view(
     pts = np.round(px[faces] * 4).astype(np.int32)  # 2 fractional bits
     for i in order:
         cv2.fillConvexPoly(img, pts[i], rgb[i].tolist(), lineType=cv2.LINE_AA, shift=2)
-    return cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+    return cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA)
 
 
 def mesh_viewer_page(
@@ -1427,21 +1502,27 @@ def mesh_viewer_page(
     colors: np.ndarray | None,
     path_points: np.ndarray | None = None,
 ) -> str:
-    """trimesh's self-contained three.js page for the mesh (both sides visible) and the
-    camera path. Raises when the page would need the network."""
+    """trimesh's self-contained three.js page for the mesh (double-sided, oblique initial view)
+    and the camera path. Raises when the page would need the network."""
     import trimesh
+    from trimesh.scene.cameras import look_at
     from trimesh.viewer.notebook import scene_to_html
 
     nv = len(vertices)
-    c = np.asarray(colors if colors is not None else np.tile(TISSUE_RGB, (nv, 1)), np.uint8)
-    two_sided = trimesh.Trimesh(
-        vertices=np.vstack([vertices, vertices]),
-        faces=np.vstack([faces, faces[:, ::-1] + nv]),
-        vertex_colors=np.vstack([c, c]),
-        process=False,
+    rgb = np.asarray(colors if colors is not None else np.tile(TISSUE_RGB, (nv, 1)), np.uint8)
+    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
+    # A matte, double-sided material (glTF's default is metallic: black without an environment
+    # map; a lumen is seen from inside and outside); colours as a vertex attribute.
+    material = trimesh.visual.material.PBRMaterial(
+        baseColorFactor=[255, 255, 255, 255],
+        metallicFactor=0.0,
+        roughnessFactor=0.85,
+        doubleSided=True,
     )
-    _ = two_sided.vertex_normals  # cached normals are exported: smooth shading
-    scene = trimesh.Scene(two_sided)
+    mesh.visual = trimesh.visual.TextureVisuals(material=material)
+    mesh.visual.vertex_attributes["color"] = np.column_stack([rgb, np.full(nv, 255, np.uint8)])
+    _ = mesh.vertex_normals  # cached normals are exported: smooth shading
+    scene = trimesh.Scene(mesh)
     if path_points is not None and len(path_points) >= 2:
         try:
             path = trimesh.load_path(np.asarray(path_points, np.float64))
@@ -1449,9 +1530,25 @@ def mesh_viewer_page(
             scene.add_geometry(path)
         except Exception:  # noqa: BLE001 - the path is decoration
             pass
+    axes = principal_axes(vertices)
+    back = 0.7 * axes[1] + 0.45 * axes[0] + 0.6 * axes[2]  # from the centre towards the eye
+    back /= np.linalg.norm(back)
+    right = np.cross(axes[2], back)
+    right /= np.linalg.norm(right)
+    pose = np.eye(4)
+    pose[:3, 0], pose[:3, 1], pose[:3, 2] = right, np.cross(back, right), back
+    scene.camera_transform = look_at(vertices, scene.camera.fov, rotation=pose)
     page = scene_to_html(scene)
     if not page_is_self_contained(page):
         raise RuntimeError("trimesh's viewer page loads scripts from the network")
+    # Without WebGL, three.js throws in init(): say so instead of leaving a blank frame.
+    page = page.replace(
+        "init();</script>",
+        "try{init();}catch(e){document.body.innerHTML='<p style=\"font:14px sans-serif;"
+        "color:#6b7684;padding:16px\">3D viewer unavailable: '+e.message+' (needs WebGL). "
+        "The static views below show the mesh.</p>';}</script>",
+        1,
+    )
     return page
 
 
@@ -1474,8 +1571,14 @@ def section_mesh(data: CaseData, info: ReportInfo) -> str | None:
         return None
     parts = []
     mm = data.mesh_metrics
-    if mm:
-        rows = mesh_metric_rows(mm, data.units)
+    if mm and mm.get("evaluated") is False:
+        parts.append(
+            "<h3>Surface accuracy</h3>"
+            + not_available(f"not evaluated: {mm.get('reason') or 'no reason given'}")
+        )
+    elif mm:
+        gt_units = str(getattr(data.ground_truth(), "units", "") or "mm")
+        rows = mesh_metric_rows(mm, gt_units)
         parts.append(
             '<h3>Surface accuracy</h3><p class="note">After aligning the estimated trajectory '
             "to the ground truth with a similarity transform (Umeyama); Chamfer distance in the "
@@ -1519,7 +1622,7 @@ def section_mesh(data: CaseData, info: ReportInfo) -> str | None:
         try:
             page = mesh_viewer_page(v, f, c, path_points)
             viewer_html = (
-                '<iframe class="viewer" title="3D mesh viewer" sandbox="allow-scripts" '
+                '<iframe class="viewer" title="3D mesh viewer" '
                 f'srcdoc="{html.escape(page, quote=True)}"></iframe>'
                 '<p class="note">Interactive: drag to rotate, scroll to zoom, right-drag to pan. '
                 "three.js is inlined (bundled with trimesh), so this works offline; it needs "
@@ -1545,8 +1648,11 @@ def section_mesh(data: CaseData, info: ReportInfo) -> str | None:
         f'<h3>3D view</h3><p class="note">06_mesh/mesh.ply: {html.escape(note)}.</p>'
         + viewer_html
         + (f'<div class="views">{"".join(views)}</div>' if views else "")
-        + ('<p class="note">Static orthographic views along the mesh\'s principal axes.</p>'
-           if views else "")
+        + (
+            '<p class="note">Static orthographic views along the mesh\'s principal axes.</p>'
+            if views
+            else ""
+        )
     )
     return "".join(parts)
 
@@ -1663,6 +1769,7 @@ figure { margin: 10px 0; }
 figure img, video.wide { max-width: 100%; height: auto; border: 1px solid var(--line);
   border-radius: 4px; background: #fff; }
 figure.wide img { width: 100%; }
+figure.medium img { width: 100%; max-width: 860px; }
 figcaption { color: var(--muted); font-size: 12.5px; margin-top: 4px; }
 .views { display: grid; grid-template-columns: repeat(auto-fill, minmax(300px, 1fr));
   gap: 12px; }
