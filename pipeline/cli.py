@@ -36,10 +36,14 @@ DEFAULT_WORKDIR = Path("workdir")
 def all_stages() -> list[type[Stage]]:
     """The DAG in order. Imported lazily so `endopipe --help` stays fast."""
     from stages.centerline import Centerline
+    from stages.depth import Depth
     from stages.ingest import Ingest
+    from stages.mesh import Mesh
+    from stages.nerf.stage import Nerf
     from stages.poses import Poses
+    from stages.report import Report
 
-    return [Ingest, Poses, Centerline]
+    return [Ingest, Poses, Centerline, Nerf, Depth, Mesh, Report]
 
 
 def build_pipeline() -> Pipeline:
@@ -305,6 +309,34 @@ def demo(
     out.print(f"demo finished in {time.perf_counter() - t0:.1f} s; outputs:")
     for stage in pipe.stages:
         out.print(f"  {stage.name:<11} {case_dir / pipe.folder_name(stage.name)}")
+
+
+@app.command()
+def bench(
+    workdir: Annotated[Path, typer.Option(help="Where cases and results go.")] = Path(
+        "workdir/bench"
+    ),
+    quick: Annotated[
+        bool, typer.Option(help="One small colon, three variants (< 10 min).")
+    ] = False,
+    set_: Annotated[list[str] | None, typer.Option("--set", help="Extra stage.key=value.")] = None,
+) -> None:
+    """The paper's Table 1 on fixed-seed synthetic cases with ablations; CSV and markdown."""
+    from stages.bench import markdown_table, plan, run_bench, write_csv
+
+    ensure_writable(workdir)
+    pipe = build_pipeline()
+    load_config(pipe.stages, [], set_ or [])  # validate extra settings before hours of work
+    t0 = time.perf_counter()
+    rows = run_bench(pipe, workdir, plan(quick), prepare_case, console, set_ or [])
+    table = markdown_table(rows)
+    write_csv(workdir / "bench.csv", rows)
+    (workdir / "bench.md").write_text(table + "\n")
+    out.print(table, markup=False, highlight=False, soft_wrap=True)
+    out.print(
+        f"bench finished in {time.perf_counter() - t0:.0f} s; "
+        f"{workdir / 'bench.csv'}, {workdir / 'bench.md'}"
+    )
 
 
 def _has_preset(name: str) -> bool:

@@ -3,15 +3,19 @@ cubes), cleaned, exported in the world frame and units of 02_poses/cameras.json,
 against the case's ground-truth mesh when it has one (DESIGN §3 `06_mesh/`, §6).
 
 - `tsdf`: the per-frame z-depth maps of 05_depth (0 = invalid; pixels whose 05_depth opacity is
-  under `min_opacity` dropped) are fused in open3d's ScalableTSDFVolume. Voxel: the lumen radius
-  (the prior's typical radius) / `voxels_per_radius`; truncation `sdf_trunc_voxels` voxels;
-  depth truncated at `depth_trunc` (default: the `depth_trunc_percentile` percentile of all
-  valid depths). Vertex colours from the ingest frames when `colour`.
+  under `min_opacity` dropped) are fused in open3d's tensor VoxelBlockGrid (CPU). Voxel: the
+  lumen radius (the prior's typical radius) / `voxels_per_radius`; truncation
+  `sdf_trunc_voxels` voxels; depth truncated at `depth_trunc` (default: the
+  `depth_trunc_percentile` percentile of all valid depths); surface where at least
+  `min_observations` frames saw it. Vertex colours from the ingest frames when `colour`.
 - `marching_cubes`: the NeRF density (a `density_fn(points (N, 3) world, torch) -> sigma (N,)
   per world unit`, here from stages.nerf's `load_model`) on a grid over the bounding box of the
   registered cameras' frustums (up to the same depth truncation), evaluated only in the prior's
   band |signed_distance| < `band` x radius; skimage's marching cubes at `density_level` (per
-  lumen radius) on the cubes whose eight corners lie in the band (no surface at its edge).
+  lumen radius), keeping only surface on grid edges with both nodes in the band (no surface
+  where the band ends); then, with `cull_unseen`, only the faces some registered camera sees
+  (first hit of a pixel ray, on the lumen side, grown by `cull_dilate` rings): the NeRF's
+  density often rises and falls again behind the wall, and that back surface is never seen.
 - Clean-up: duplicated / null faces and unreferenced vertices removed, connected components
   smaller than `min_component_fraction` of the largest (faces) or `min_component_diameter`
   radii across dropped (floaters), then Taubin smoothing (pymeshlab).
@@ -44,7 +48,7 @@ from pipeline.errors import StageFailed
 from pipeline.stage import Stage, StageConfig, StageContext, Summary, write_json
 from stages.cameras import PosesView
 from stages.geometry import Intrinsics, umeyama
-from stages.mesh_metrics import evaluate_mesh, transform_points
+from stages.mesh_metrics import evaluate_mesh, frustum_box, transform_points
 
 DensityFn = Callable[[torch.Tensor], torch.Tensor]
 
@@ -61,9 +65,7 @@ class MeshConfig(StageConfig):
     voxel_size: float | None = Field(
         None, gt=0, description="TSDF voxel size in cameras.json units; overrides the above."
     )
-    sdf_trunc_voxels: float = Field(
-        4.0, gt=1, description="TSDF truncation distance, in voxels."
-    )
+    sdf_trunc_voxels: float = Field(4.0, gt=1, description="TSDF truncation distance, in voxels.")
     depth_trunc: float | None = Field(
         None,
         gt=0,
@@ -96,10 +98,19 @@ class MeshConfig(StageConfig):
         "band x local radius (elsewhere nothing is extracted).",
     )
     density_level: float = Field(
-        10.0,
+        3.0,
         gt=0,
         description="Marching cubes: iso-level of the density, per lumen radius (the NeRF's "
-        "scene units: a wall layer 0.1 radius thick at this level has opacity 1 - e^-1).",
+        "scene units; sigma in world units = level / radius). Low levels match the rendered "
+        "depth best (2-5 on a synthetic colon).",
+    )
+    cull_unseen: bool = Field(
+        True,
+        description="Marching cubes: keep only faces that a registered camera's pixel ray hits "
+        "first, on their lumen side (drops surface behind the wall and never-seen parts).",
+    )
+    cull_dilate: int = Field(
+        1, ge=0, description="Marching cubes: grow the seen faces by this many rings (no holes)."
     )
     device: Literal["auto", "cpu", "cuda"] = Field(
         "auto", description="Marching cubes: where the NeRF density is evaluated."
@@ -119,9 +130,7 @@ class MeshConfig(StageConfig):
         description="Drop connected components whose bounding-box diagonal is under this many "
         "lumen radii (floaters).",
     )
-    smooth_iterations: int = Field(
-        5, ge=0, description="Taubin smoothing steps (0: none)."
-    )
+    smooth_iterations: int = Field(5, ge=0, description="Taubin smoothing steps (0: none).")
     taubin_lambda: float = Field(0.5, gt=0, lt=1, description="Taubin smoothing lambda.")
     taubin_mu: float = Field(-0.53, lt=0, gt=-1, description="Taubin smoothing mu (negative).")
     export_obj: bool = Field(False, description="Also write mesh.obj (same frame and units).")
@@ -342,26 +351,6 @@ def fuse_depth_folder(
 
 
 # --- marching cubes on the NeRF density -------------------------------------------------------
-def frustum_bounds(
-    c2ws: list[np.ndarray], intrinsics: Intrinsics, max_depth: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """World bounding box of the cameras' frustums (apex and far-plane corners at max_depth)."""
-    k = intrinsics
-    corners = np.array(
-        [[-0.5, -0.5], [k.width - 0.5, -0.5], [-0.5, k.height - 0.5], [k.width - 0.5, k.height - 0.5]]
-    )
-    rays = np.stack(
-        [(corners[:, 0] - k.cx) / k.fx, (corners[:, 1] - k.cy) / k.fy, np.ones(4)], -1
-    )
-    pts = []
-    for c2w in c2ws:
-        c2w = np.asarray(c2w, np.float64)
-        pts.append(c2w[:3, 3][None])
-        pts.append((rays * max_depth) @ c2w[:3, :3].T + c2w[:3, 3])
-    allp = np.concatenate(pts)
-    return allp.min(0), allp.max(0)
-
-
 @dataclass
 class BandGrid:
     """Density on a regular grid: values[i, j, k] at origin + (i, j, k) * spacing; `mask`:
@@ -400,9 +389,7 @@ def band_density_grid(
     step = max(1, chunk // plane)
     for i0 in range(0, shape[0], step):
         xs = axes[0][i0 : i0 + step]
-        pts = np.concatenate(
-            [np.repeat(xs, plane)[:, None], np.tile(yz, (len(xs), 1))], axis=1
-        )
+        pts = np.concatenate([np.repeat(xs, plane)[:, None], np.tile(yz, (len(xs), 1))], axis=1)
         pts_t = torch.as_tensor(pts, dtype=torch.float32)
         with torch.no_grad():
             sd = prior.signed_distance(pts_t).float()
@@ -421,27 +408,75 @@ def band_density_grid(
 
 
 def marching_cubes_mesh(grid: BandGrid, level: float) -> RawMesh:
-    """Iso-surface at `level` over the cubes whose 8 corners are all in the grid's mask; faces
-    wound so that normals point towards lower density (into the lumen)."""
+    """Iso-surface at `level` from grid edges whose two nodes both lie in the grid's mask (no
+    surface where the band ends); faces wound so that normals point towards lower density
+    (into the lumen)."""
     from skimage.measure import marching_cubes
 
     v, m = grid.values, grid.mask
-    if min(v.shape) < 2:
-        return RawMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
-    cube = m[:-1, :-1, :-1].copy()
-    for di in (0, 1):
-        for dj in (0, 1):
-            for dk in (0, 1):
-                cube &= m[di : di + v.shape[0] - 1, dj : dj + v.shape[1] - 1, dk : dk + v.shape[2] - 1]
-    cube_mask = np.zeros_like(m)
-    cube_mask[:-1, :-1, :-1] = cube
-    vals = v[cube_mask]
-    if not cube.any() or not (vals.min() < level < vals.max()):
-        return RawMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
-    verts, faces, _, _ = marching_cubes(
-        v, level=level, spacing=(grid.spacing,) * 3, mask=cube_mask, allow_degenerate=False
-    )
-    return RawMesh(verts.astype(np.float64) + grid.origin, faces.astype(np.int64))
+    empty = RawMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
+    if min(v.shape) < 2 or not m.any():
+        return empty
+    vals = v[m]
+    if not (vals.min() < level < vals.max()):
+        return empty
+    # skimage's mask restricts the cubes visited (by their first corner; a speed-up only).
+    verts, faces, _, _ = marching_cubes(v, level=level, mask=m, allow_degenerate=False)
+    if len(faces) == 0:
+        return empty
+    # A vertex lies on a grid edge: both end nodes must be in the band, else drop its faces.
+    lo = np.clip(np.floor(verts + 1e-6).astype(np.int64), 0, np.array(v.shape) - 1)
+    hi = np.clip(np.ceil(verts - 1e-6).astype(np.int64), 0, np.array(v.shape) - 1)
+    ok_v = m[lo[:, 0], lo[:, 1], lo[:, 2]] & m[hi[:, 0], hi[:, 1], hi[:, 2]]
+    faces = faces[ok_v[faces].all(1)][:, ::-1]  # skimage winds normals towards high density
+    used, faces = np.unique(faces, return_inverse=True)
+    verts = verts[used].astype(np.float64) * grid.spacing + grid.origin
+    return RawMesh(verts, faces.reshape(-1, 3).astype(np.int64))
+
+
+def cull_unseen(
+    mesh: RawMesh,
+    c2ws: list[np.ndarray],
+    intrinsics: Intrinsics,
+    supersample: int = 1,
+    dilate: int = 1,
+) -> tuple[RawMesh, float]:
+    """Keep the faces that some camera sees: the first hit of one of its pixel rays
+    (`supersample`^2 rays per pixel), on the face's front (normals face the lumen), then grown
+    by `dilate` rings of neighbouring faces (closes the pin holes between rays). Returns the
+    mesh and the fraction of faces kept."""
+    import open3d as o3d
+
+    from stages.mesh_metrics import _raycasting_scene
+
+    if mesh.empty:
+        return mesh, 1.0
+    v, f = mesh.vertices, mesh.faces
+    centre = v.mean(0)
+    scene = _raycasting_scene(v - centre, f)
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    k = intrinsics
+    if supersample > 1:
+        k = k.scaled(k.width * supersample, k.height * supersample)
+    u, w = np.meshgrid(np.arange(k.width, dtype=np.float64), np.arange(k.height, dtype=np.float64))
+    dirs_cam = np.stack([(u - k.cx) / k.fx, (w - k.cy) / k.fy, np.ones_like(u)], -1).reshape(-1, 3)
+    seen = np.zeros(len(f), bool)
+    invalid = o3d.t.geometry.RaycastingScene.INVALID_ID
+    for c2w in c2ws:
+        c2w = np.asarray(c2w, np.float64)
+        d = dirs_cam @ c2w[:3, :3].T
+        o = np.broadcast_to(c2w[:3, 3] - centre, d.shape)
+        rays = o3d.core.Tensor(np.ascontiguousarray(np.concatenate([o, d], 1), np.float32))
+        ids = scene.cast_rays(rays)["primitive_ids"].numpy().astype(np.int64)
+        hit = ids != invalid
+        ids, d = ids[hit], d[hit]
+        front = (n[ids] * d).sum(1) < 0
+        seen[ids[front]] = True
+    for _ in range(max(dilate, 0)):
+        vs = np.zeros(len(v), bool)
+        vs[f[seen].ravel()] = True
+        seen = vs[f].any(1)
+    return RawMesh(v, f[seen], mesh.colours), float(seen.mean())
 
 
 def nerf_density_fn(model: Any) -> DensityFn:
@@ -466,16 +501,21 @@ def density_mesh(
     """Marching cubes of a density function in the prior's band, over the frustums' box."""
     radius = float(prior.typical_radius)
     spacing = radius / cfg.mc_voxels_per_radius
-    lo, hi = frustum_bounds(c2ws, intrinsics, depth_trunc)
+    k = intrinsics
+    lo, hi = frustum_box(c2ws, k.matrix(), k.width, k.height, depth_trunc)
     grid = band_density_grid(density_fn, prior, lo, hi, spacing, cfg.band, cfg.chunk, device)
     level = cfg.density_level / radius
     mesh = marching_cubes_mesh(grid, level)
-    return mesh, {
+    info = {
         "voxel_size": spacing,
         "depth_trunc": depth_trunc,
         "level": level,
         "band_nodes": int(grid.mask.sum()),
+        "faces_extracted": len(mesh.faces),
     }
+    if cfg.cull_unseen:
+        mesh, info["seen_fraction"] = cull_unseen(mesh, c2ws, intrinsics, 1, cfg.cull_dilate)
+    return mesh, info
 
 
 # --- clean-up ----------------------------------------------------------------------------------
@@ -641,8 +681,8 @@ def evaluate_against_gt(
             c[:3, 3] = s * R @ poses.c2w[i][:3, 3] + t
             cams.append(c)
     k = poses.intrinsics
-    radius = gt_radius if gt_radius is not None else (
-        est_radius * s if est_radius is not None else None
+    radius = (
+        gt_radius if gt_radius is not None else (est_radius * s if est_radius is not None else None)
     )
     threshold = cfg.fscore_threshold
     if cfg.fscore_threshold_pct_radius is not None and radius is not None:
@@ -705,6 +745,13 @@ def gt_poses_by_index(gt: Any, ingest: Any) -> dict[int, np.ndarray] | None:
 
 
 # --- the stage ----------------------------------------------------------------------------------
+def _finite(v: Any) -> Any:
+    """JSON has no inf / nan: such values become null."""
+    if isinstance(v, float) and not np.isfinite(v):
+        return None
+    return v
+
+
 def pick_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -809,9 +856,10 @@ class Mesh(Stage):
             method=cfg.method,
             vertices=int(len(mesh.vertices)),
             faces=int(len(mesh.faces)),
-            **{k: float(v) for k, v in info.items()},
+            **{k: v if isinstance(v, int) else float(v) for k, v in info.items()},
             **clean_info,
         )
+        metrics = {k: _finite(v) for k, v in metrics.items()}
         write_json(ctx.out / "metrics.json", metrics)
         keys = ("chamfer", "chamfer_pct_radius", "accuracy", "completeness", "fscore")
         return MeshSummary(
@@ -840,9 +888,7 @@ class MeshView:
         obj = self.folder / "mesh.obj"
         self.obj_path: Path | None = obj if obj.is_file() else None
         metrics = self.folder / "metrics.json"
-        self.metrics: dict[str, Any] = (
-            json.loads(metrics.read_text()) if metrics.is_file() else {}
-        )
+        self.metrics: dict[str, Any] = json.loads(metrics.read_text()) if metrics.is_file() else {}
 
     @property
     def evaluated(self) -> bool:

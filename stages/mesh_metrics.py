@@ -12,7 +12,8 @@ What is compared (the crop, `evaluate_mesh`):
 - completeness (gt -> est) is measured on the part of the ground-truth surface the cameras
   could see: points sampled on the GT mesh that project inside the image (and the field-of-view
   mask) of at least one registered camera, with z-depth in (0, max_depth], and that are the
-  first surface hit along the ray from that camera's centre (occluders: the whole GT mesh).
+  first surface hit along the ray from that camera's centre (occluders: every GT face in or
+  near the frustums, which holds every possible occluder).
   Surface hidden behind folds, out of every frustum, or further than max_depth is not asked for.
 - accuracy (est -> gt) is measured for estimated points inside at least one camera's frustum up
   to max_depth (no occlusion test: a floater in front of the wall counts), against the whole GT
@@ -27,9 +28,7 @@ from scipy.spatial import cKDTree
 _CHUNK = 1 << 20  # points per raycasting query
 
 
-def sample_surface(
-    vertices: np.ndarray, faces: np.ndarray, n: int, seed: int = 0
-) -> np.ndarray:
+def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
     """`n` points uniformly distributed (by area) on a triangle mesh; (n, 3) float64."""
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64).reshape(-1, 3)
@@ -111,16 +110,23 @@ def in_frustum(
 ) -> np.ndarray:
     """Whether each point projects inside the image (pixel centres 0..W-1, 0..H-1, grown by
     `margin_px`) and inside `mask` (HxW, nonzero = seen) with z-depth in (0, max_depth]."""
-    uv, z = camera_depths(points, c2w, K)
-    m = margin_px + 0.5
+    w2c = np.linalg.inv(np.asarray(c2w, np.float64))
+    z = points @ w2c[2, :3] + w2c[2, 3]
     ok = (z > 0) & (z <= max_depth)
-    ok &= (uv[:, 0] >= -m) & (uv[:, 0] <= width - 1 + m)
-    ok &= (uv[:, 1] >= -m) & (uv[:, 1] <= height - 1 + m)
-    if mask is not None and ok.any():
-        idx = np.nonzero(ok)[0]
-        u = np.clip(np.round(uv[idx, 0]).astype(np.int64), 0, width - 1)
-        v = np.clip(np.round(uv[idx, 1]).astype(np.int64), 0, height - 1)
-        ok[idx] = np.asarray(mask)[v, u] > 0
+    idx = np.nonzero(ok)[0]
+    if len(idx) == 0:
+        return ok
+    p = points[idx]
+    zi = z[idx]
+    u = K[0, 0] * (p @ w2c[0, :3] + w2c[0, 3]) / zi + K[0, 2]
+    v = K[1, 1] * (p @ w2c[1, :3] + w2c[1, 3]) / zi + K[1, 2]
+    m = margin_px + 0.5
+    inside = (u >= -m) & (u <= width - 1 + m) & (v >= -m) & (v <= height - 1 + m)
+    if mask is not None:
+        ui = np.clip(np.round(u).astype(np.int64), 0, width - 1)
+        vi = np.clip(np.round(v).astype(np.int64), 0, height - 1)
+        inside &= np.asarray(mask)[vi, ui] > 0
+    ok[idx] = inside
     return ok
 
 
@@ -190,6 +196,22 @@ def visible_from_cameras(
     return seen
 
 
+def frustum_box(
+    c2ws: list[np.ndarray], K: np.ndarray, width: int, height: int, max_depth: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """World bounding box (lo, hi) of the cameras' frustums: apexes and far-plane corners."""
+    cu = np.array([-0.5, width - 0.5, -0.5, width - 0.5])
+    cv = np.array([-0.5, -0.5, height - 0.5, height - 0.5])
+    rays = np.stack([(cu - K[0, 2]) / K[0, 0], (cv - K[1, 2]) / K[1, 1], np.ones(4)], -1)
+    pts = []
+    for c2w in c2ws:
+        c2w = np.asarray(c2w, np.float64)
+        pts.append(c2w[:3, 3][None])
+        pts.append((rays * max_depth) @ c2w[:3, :3].T + c2w[:3, 3])
+    allp = np.concatenate(pts)
+    return allp.min(0), allp.max(0)
+
+
 def faces_near_cameras(
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -198,19 +220,21 @@ def faces_near_cameras(
     width: int,
     height: int,
     max_depth: float,
-    mask: np.ndarray | None = None,
     slack: float = 0.05,
 ) -> np.ndarray:
-    """Faces whose centroid lies in some camera's frustum, grown by `slack` (fraction of the
-    image size and of max_depth): a cheap superset of the visible surface to sample from."""
+    """Faces with a vertex in some camera's frustum, grown by `slack` (fraction of the image
+    size and of max_depth): a cheap superset of the visible surface (and of its occluders)."""
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64).reshape(-1, 3)
-    centroids = v[f].mean(1)
+    lo, hi = frustum_box(c2ws, K, width, height, max_depth * (1.0 + slack))
+    pad = slack * max_depth
+    cand = np.nonzero(((v >= lo - pad) & (v <= hi + pad)).all(1))[0]
+    near_v = np.zeros(len(v), bool)
     margin = slack * max(width, height)
-    keep = in_any_frustum(
-        centroids, c2ws, K, width, height, max_depth * (1.0 + slack), None, margin
+    near_v[cand] = in_any_frustum(
+        v[cand], c2ws, K, width, height, max_depth * (1.0 + slack), None, margin
     )
-    return f[keep]
+    return f[near_v[f].any(1)]
 
 
 def fscore(d_acc: np.ndarray, d_comp: np.ndarray, threshold: float) -> tuple[float, float, float]:
@@ -284,10 +308,10 @@ def evaluate_mesh(
     """
     gt_v = np.asarray(gt_vertices, np.float64)
     gt_f = np.asarray(gt_faces, np.int64).reshape(-1, 3)
-    near = faces_near_cameras(gt_v, gt_f, c2ws, K, width, height, max_depth, mask)
+    near = faces_near_cameras(gt_v, gt_f, c2ws, K, width, height, max_depth)
     gt_pts = sample_surface(gt_v, near, n_samples, seed + 1)
-    if occlusion:
-        keep = visible_from_cameras(gt_pts, c2ws, K, width, height, max_depth, gt_v, gt_f, mask)
+    if occlusion:  # occluders lie in the frustums too: the near faces suffice
+        keep = visible_from_cameras(gt_pts, c2ws, K, width, height, max_depth, gt_v, near, mask)
     else:
         keep = in_any_frustum(gt_pts, c2ws, K, width, height, max_depth, mask)
     gt_pts = gt_pts[keep]

@@ -1,0 +1,339 @@
+"""Mesh stage: metrics on analytic shapes, clean-up, marching cubes on an analytic density, TSDF
+fusion of a synthetic case's ground-truth depth maps, and the stage's run() on fake inputs."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from rich.console import Console
+
+from stages import mesh_metrics as mm
+from stages.cameras import CamerasFile, PosesView
+from stages.geometry import Intrinsics
+from stages.mesh import (
+    Mesh,
+    MeshConfig,
+    MeshView,
+    RawMesh,
+    band_density_grid,
+    clean_mesh,
+    cull_unseen,
+    evaluate_against_gt,
+    fuse_depth_folder,
+    marching_cubes_mesh,
+)
+from stages.prior import TubePrior
+
+
+def sphere(radius: float, centre=(0.0, 0.0, 0.0), subdivisions: int = 5) -> RawMesh:
+    s = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    return RawMesh(np.asarray(s.vertices) + np.asarray(centre), np.asarray(s.faces))
+
+
+# --- metrics on analytic shapes ----------------------------------------------------------------
+def test_chamfer_of_concentric_spheres_is_the_radius_difference():
+    a, b = sphere(10.0), sphere(10.3)
+    m = mm.chamfer(a.vertices, a.faces, b.vertices, b.faces, threshold=1.0, n_samples=20_000)
+    assert m["chamfer"] == pytest.approx(0.3, abs=0.02)
+    assert m["accuracy"] == pytest.approx(0.3, abs=0.02)
+    assert m["completeness"] == pytest.approx(0.3, abs=0.02)
+    assert m["fscore"] == 1.0  # generous threshold
+    assert mm.chamfer(a.vertices, a.faces, b.vertices, b.faces, 0.1, 20_000)["fscore"] == 0.0
+
+
+def test_identical_meshes_score_zero():
+    a = sphere(10.0, centre=(100.0, -50.0, 30.0))
+    m = mm.chamfer(a.vertices, a.faces, a.vertices, a.faces, threshold=0.05, n_samples=20_000)
+    assert m["chamfer"] < 1e-3
+    assert m["fscore"] == 1.0
+
+
+def test_sampling_is_uniform_by_area():
+    a = sphere(10.0)
+    pts = mm.sample_surface(a.vertices, a.faces, 50_000, seed=1)
+    assert np.linalg.norm(pts, axis=1) == pytest.approx(10.0, abs=0.05)
+    # Uniform on a sphere: each octant holds ~1/8 of the points.
+    octant = (pts > 0).astype(int) @ np.array([1, 2, 4])
+    counts = np.bincount(octant, minlength=8) / len(pts)
+    assert np.abs(counts - 0.125).max() < 0.01
+    assert mm.nearest_distance(pts[:10], pts).max() == 0.0
+
+
+def test_visibility_respects_frustum_depth_and_occlusion():
+    K = np.array([[50.0, 0, 49.5], [0, 50.0, 49.5], [0, 0, 1]])
+    cam = np.eye(4)  # at the origin, looking along +z
+    # A wall at z=20 (two triangles, 20 x 20) and a small occluder at z=10 in front of it.
+    wall_v = np.array([[-10, -10, 20], [10, -10, 20], [10, 10, 20], [-10, 10, 20.0]])
+    occ_v = np.array([[-1, -1, 10], [1, -1, 10], [1, 1, 10], [-1, 1, 10.0]])
+    quad = np.array([[0, 1, 2], [0, 2, 3]])
+    verts = np.concatenate([wall_v, occ_v])
+    faces = np.concatenate([quad, quad + 4])
+    pts = np.array([[0, 0, 20.0], [5, 5, 20.0], [0, 0, -5.0], [30, 0, 20.0]])
+    inside = mm.in_frustum(pts, cam, K, 100, 100, max_depth=50)
+    assert inside.tolist() == [True, True, False, False]
+    assert not mm.in_frustum(pts[:1], cam, K, 100, 100, max_depth=15)[0]
+    vis = mm.visible_from_cameras(pts, [cam], K, 100, 100, 50, verts, faces)
+    assert vis.tolist() == [False, True, False, False]  # the first is behind the occluder
+
+
+# --- clean-up -------------------------------------------------------------------------------
+def test_clean_mesh_drops_floaters_and_keeps_the_surface():
+    big, small = sphere(10.0), sphere(0.5, centre=(30, 0, 0), subdivisions=2)
+    merged = RawMesh(
+        np.concatenate([big.vertices, small.vertices]),
+        np.concatenate([big.faces, small.faces + len(big.vertices)]),
+        np.full((len(big.vertices) + len(small.vertices), 3), 200, np.uint8),
+    )
+    out, info = clean_mesh(
+        merged, min_component_fraction=0.05, min_component_diameter=2.0, smooth_iterations=5
+    )
+    assert info["components_removed"] == 1
+    assert len(out.faces) == len(big.faces)
+    assert out.colours is not None and len(out.colours) == len(out.vertices)
+    # Taubin smoothing barely shrinks a fine sphere.
+    assert np.linalg.norm(out.vertices, axis=1).mean() == pytest.approx(10.0, rel=0.01)
+
+
+# --- marching cubes on a density ----------------------------------------------------------------
+def test_marching_cubes_in_the_band_finds_the_wall():
+    # Prior: straight tube of radius 5 along z; "true" wall (where density rises) at r = 5.3.
+    prior = TubePrior(np.array([[0, 0, -20.0], [0, 0, 20.0]]), 5.0)
+
+    def density(x: torch.Tensor) -> torch.Tensor:
+        r = torch.linalg.norm(x[:, :2], dim=1)
+        return 5.0 * torch.sigmoid((r - 5.3) / 0.05)  # per world unit
+
+    spacing = 5.0 / 16
+    grid = band_density_grid(
+        density, prior, np.array([-9, -9, -5.0]), np.array([9, 9, 5.0]), spacing, band=0.6
+    )
+    # The band excludes the core and everything beyond 1.6 radii.
+    nodes = np.argwhere(grid.mask) * grid.spacing + grid.origin
+    r_nodes = np.linalg.norm(nodes[:, :2], axis=1)
+    assert r_nodes.min() > 2.0 - spacing and r_nodes.max() < 8.0 + spacing
+    mesh = marching_cubes_mesh(grid, level=2.5)
+    assert len(mesh.faces) > 1000
+    r = np.linalg.norm(mesh.vertices[:, :2], axis=1)
+    assert np.abs(r - 5.3).max() < 0.05
+    assert mesh.vertices[:, 2].min() > -5.01 and mesh.vertices[:, 2].max() < 5.01
+    # Faces are wound so that normals point into the lumen (towards lower density).
+    v, f = mesh.vertices, mesh.faces
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    assert ((n[:, :2] * v[f[:, 0], :2]).sum(1) < 0).all()
+
+
+def test_cull_unseen_drops_the_surface_behind_the_wall():
+    # A wall shell 5.3 < r < 6.5: marching cubes finds its inner (seen) and outer (hidden) side.
+    prior = TubePrior(np.array([[0, 0, -20.0], [0, 0, 20.0]]), 5.0)
+
+    def density(x: torch.Tensor) -> torch.Tensor:
+        r = torch.linalg.norm(x[:, :2], dim=1)
+        return 5.0 * torch.sigmoid((r - 5.3) / 0.05) * torch.sigmoid((6.5 - r) / 0.05)
+
+    grid = band_density_grid(
+        density, prior, np.array([-9, -9, -5.0]), np.array([9, 9, 5.0]), 5.0 / 16, band=0.6
+    )
+    both = marching_cubes_mesh(grid, level=2.5)
+    r = np.linalg.norm(both.vertices[:, :2], axis=1)
+    assert (np.abs(r - 6.5) < 0.05).any() and (np.abs(r - 5.3) < 0.05).any()
+    cam = np.eye(4)
+    cam[:3, 3] = [0, 0, -4.0]  # on the axis, looking down the tube (+z)
+    intr = Intrinsics(width=64, height=64, fx=16.0, fy=16.0, cx=31.5, cy=31.5)
+    seen, frac = cull_unseen(both, [cam], intr, supersample=1, dilate=1)
+    used = np.unique(seen.faces)
+    r = np.linalg.norm(seen.vertices[used, :2], axis=1)
+    assert len(seen.faces) > 500 and 0 < frac < 0.6
+    assert np.abs(r - 5.3).max() < 0.05
+
+
+# --- TSDF fusion of ground-truth depth on a synthetic case ------------------------------------
+@pytest.fixture(scope="module")
+def synth_case(tmp_path_factory) -> Path:
+    from stages.synth import SynthConfig, generate_case
+
+    case = tmp_path_factory.mktemp("mesh") / "case"
+    generate_case(case, SynthConfig(seed=0, frames=16, width=160, height=128, specular=False))
+    return case
+
+
+def fake_inputs(case: Path, root: Path) -> tuple[PosesView, Path, dict[int, np.ndarray], float]:
+    """02_poses (GT poses, metric) and 05_depth (GT depth) folders for the case."""
+    from stages.io.ground_truth import GroundTruth
+
+    gt = GroundTruth(case / "gt")
+    intr = Intrinsics.load(case / "intrinsics.json")
+    poses = dict(enumerate(gt.poses()))
+    (root / "02_poses").mkdir(parents=True, exist_ok=True)
+    cams = CamerasFile.build(intr, poses, len(poses), metric=True, source="gt")
+    (root / "02_poses" / "cameras.json").write_text(cams.model_dump_json())
+    (root / "05_depth" / "depth").mkdir(parents=True, exist_ok=True)
+    for i in poses:
+        np.save(root / "05_depth" / "depth" / f"{i:06d}.npy", gt.depth(i))
+    radius = float(np.mean(gt.centerline()[1]))
+    return PosesView(root / "02_poses"), root / "05_depth", poses, radius
+
+
+@pytest.fixture(scope="module")
+def fused(synth_case, tmp_path_factory):
+    root = tmp_path_factory.mktemp("fused")
+    poses, depth_dir, gt_poses, radius = fake_inputs(synth_case, root)
+    cfg = MeshConfig(colour=False, eval_samples=60_000)
+    raw, info = fuse_depth_folder(depth_dir, poses, cfg, radius)
+    mesh, _ = clean_mesh(
+        raw,
+        min_component_fraction=cfg.min_component_fraction,
+        min_component_diameter=cfg.min_component_diameter * radius,
+        smooth_iterations=cfg.smooth_iterations,
+    )
+    return mesh, info, poses, gt_poses, radius, cfg
+
+
+def test_tsdf_of_ground_truth_depth_matches_the_ground_truth_mesh(fused, synth_case):
+    mesh, info, poses, gt_poses, radius, cfg = fused
+    assert info["frames_used"] == 16
+    assert info["voxel_size"] == pytest.approx(radius / 64)
+    m = evaluate_against_gt(
+        mesh,
+        poses,
+        synth_case / "gt" / "mesh.ply",
+        gt_poses,
+        info["depth_trunc"],
+        cfg,
+        gt_radius=radius,
+    )
+    assert m["evaluated"] and m["aligned"] == "gt_frame"
+    assert m["chamfer_pct_radius"] < 2.5, m
+    assert m["accuracy"] < 0.05 * radius and m["completeness"] < 0.05 * radius
+    assert m["fscore"] > 0.95
+    assert m["gt_points"] > 0.3 * cfg.eval_samples
+
+
+def test_non_metric_reconstruction_is_aligned_by_sim3(fused, synth_case, tmp_path):
+    mesh, info, poses, gt_poses, radius, cfg = fused
+    # The same reconstruction in another frame and scale (as from COLMAP): x' = s R x + t.
+    s, t = 0.37, np.array([3.0, -1.0, 2.0])
+    R = trimesh.transformations.rotation_matrix(0.7, [1, 2, 3])[:3, :3]
+    moved = RawMesh(mm.transform_points(mesh.vertices, s, R, t), mesh.faces)
+    c2w = {}
+    for i, p in poses.c2w.items():
+        q = np.eye(4)
+        q[:3, :3], q[:3, 3] = R @ p[:3, :3], s * R @ p[:3, 3] + t
+        c2w[i] = q
+    (tmp_path / "p").mkdir()
+    cams = CamerasFile.build(poses.intrinsics, c2w, 16, metric=False, source="colmap")
+    (tmp_path / "p" / "cameras.json").write_text(cams.model_dump_json())
+    m = evaluate_against_gt(
+        moved,
+        PosesView(tmp_path / "p"),
+        synth_case / "gt" / "mesh.ply",
+        gt_poses,
+        info["depth_trunc"] * s,
+        cfg,
+        gt_radius=radius,
+    )
+    assert m["aligned"] == "sim3"
+    assert m["sim3_scale"] == pytest.approx(1 / s, rel=1e-6)
+    assert m["chamfer_pct_radius"] < 2.5
+
+
+# --- the stage's run() on fake upstream folders ------------------------------------------------
+def test_stage_run_writes_mesh_and_metrics(synth_case, tmp_path):
+    from pipeline.stage import CaseInfo, StageContext
+    from stages.centerline import CenterlineView
+    from stages.ingest import IngestView
+    from stages.io.ground_truth import GroundTruth
+
+    poses, depth_dir, _, radius = fake_inputs(synth_case, tmp_path)
+    ingest = tmp_path / "01_ingest"
+    shutil.copytree(synth_case / "frames", ingest / "frames")
+    frames = [
+        {
+            "index": i,
+            "source_index": i,
+            "time_s": None,
+            "file": f"frames/{i:06d}.png",
+            "mask": f"masks/{i:06d}.png",
+        }
+        for i in range(16)
+    ]
+    intr = json.loads((synth_case / "intrinsics.json").read_text())
+    (ingest / "frames.json").write_text(
+        json.dumps(
+            {
+                "frames": frames,
+                "intrinsics": intr,
+                "width": 160,
+                "height": 128,
+                "gt_dir": str(synth_case / "gt"),
+            }
+        )
+    )
+    cl = tmp_path / "03_centerline"
+    cl.mkdir()
+    points, radii = GroundTruth(synth_case / "gt").centerline()
+    prior = TubePrior(points, radii)
+    prior.save(cl / "prior.npz")
+    arclen = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    (cl / "centerline.json").write_text(
+        json.dumps(
+            {
+                "kind": "tube",
+                "units": "mm",
+                "points": points.tolist(),
+                "radius": radii.tolist(),
+                "arclength": arclen.tolist(),
+            }
+        )
+    )
+    views = {"ingest": IngestView, "poses": PosesView, "centerline": CenterlineView}
+    inputs = {
+        "ingest": ingest,
+        "poses": tmp_path / "02_poses",
+        "centerline": cl,
+        "nerf": tmp_path / "04_nerf",
+        "depth": depth_dir,
+    }
+    out = tmp_path / "06_mesh"
+    out.mkdir()
+    ctx = StageContext(
+        case_dir=tmp_path,
+        out=out,
+        config=MeshConfig(export_obj=True, eval_samples=40_000),
+        case=CaseInfo(
+            name="c",
+            input=str(synth_case),
+            kind="case",
+            input_digest="x",
+            gt_dir=str(synth_case / "gt"),
+        ),
+        inputs=inputs,
+        resolve_view=lambda name, folder: views[name](folder) if name in views else folder,
+        console=Console(quiet=True),
+        quiet=True,
+    )
+    summary = Mesh().run(ctx)
+    assert summary.evaluated and summary.aligned == "gt_frame"
+    assert summary.chamfer_pct_radius < 3.0
+    assert summary.vertices > 1000 and summary.faces > 1000
+    view = MeshView(out)
+    assert view.mesh_path.is_file() and view.obj_path is not None
+    for key in (
+        "chamfer",
+        "chamfer_pct_radius",
+        "accuracy",
+        "completeness",
+        "fscore",
+        "threshold",
+        "aligned",
+    ):
+        assert key in view.metrics
+    loaded = view.load()
+    assert len(loaded.faces) == summary.faces
+    assert loaded.colours is not None  # from the ingest frames
+    assert radius > 0
