@@ -21,11 +21,14 @@ PNG_MAX = 65535
 class DepthConfig(StageConfig):
     renderer: Literal["baked", "field"] = Field(
         "baked",
-        description="baked: march a density grid baked from the field (fast); "
-        "field: query the trained field at every sample (exact, slow).",
+        description="baked: ray-cast an iso-surface baked once from the field's density (fast); "
+        "field: volume-render the trained field at every sample (exact expected depth, slow).",
     )
-    bake_resolution: int = Field(
-        192, ge=32, le=768, description="Nodes along the longest side of the baked density grid."
+    bake_voxels_per_radius: int = Field(
+        24, ge=4, le=256, description="Baked surface: grid nodes per lumen radius."
+    )
+    bake_density_level: float = Field(
+        3.0, gt=0, description="Baked surface: density iso-level, per lumen radius."
     )
     preview: bool = Field(True, description="Write preview.mp4 (RGB | depth | error).")
     preview_fps: int = Field(10, ge=1, description="Frame rate of preview.mp4.")
@@ -39,6 +42,7 @@ class DepthSummary(Summary):
     units: str
     png_scale: float
     ms_per_frame: float
+    bake_s: float
     renderer: str
     gt_kind: str | None = None
     median_scaled: dict | None = None
@@ -82,10 +86,12 @@ class Depth(Stage):
         ingest, poses = ctx.input("ingest"), ctx.input("poses")
         model = load_model(ctx.input_dir("nerf"))
         prior = load_prior(ctx.input("centerline"))
-        renderer = make_renderer(cfg, model, prior)
         k = poses.intrinsics
         if (k.width, k.height) != (ingest.width, ingest.height):
             k = k.scaled(ingest.width, ingest.height)
+        t_bake = time.perf_counter()
+        renderer = make_renderer(cfg, model, prior, [poses.c2w[i] for i in poses.registered], k)
+        bake_s = time.perf_counter() - t_bake
         heldout = set(getattr(model, "meta", {}).get("heldout", []))
         for sub in ("depth", "opacity"):
             (ctx.out / sub).mkdir()
@@ -108,12 +114,16 @@ class Depth(Stage):
         if cfg.preview:
             write_preview(ctx.out / "preview.mp4", ingest, depths, gt_depths, cfg.preview_fps)
         ms = 1000 * float(np.median(times[1:] if len(times) > 1 else times))
-        ctx.log(f"{len(depths)} depth maps, {ms:.0f} ms per frame ({cfg.renderer})")
+        ctx.log(
+            f"{len(depths)} depth maps, {ms:.0f} ms per frame ({cfg.renderer}; "
+            f"baking {bake_s:.1f} s)"
+        )
         return DepthSummary(
             frames=len(depths),
             units=poses.file.units,
             png_scale=png_scale,
             ms_per_frame=ms,
+            bake_s=bake_s,
             renderer=cfg.renderer,
             gt_kind=metrics.get("gt_kind"),
             median_scaled=metrics.get("median_scaled"),
@@ -123,15 +133,17 @@ class Depth(Stage):
         )
 
 
-def make_renderer(cfg: DepthConfig, model, prior):
+def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k):
     """A function (intrinsics, c2w, frame, colour) -> {depth, opacity[, rgb]}."""
     from stages.nerf.render import render_image
 
     if cfg.renderer == "field":
         return lambda k, c2w, i, colour: render_image(model, prior, k, c2w, colour=colour)
-    from stages.nerf.baked import BakedRenderer
+    from stages.nerf.baked import BakedSurface
 
-    baked = BakedRenderer.bake(model, prior, resolution=cfg.bake_resolution)
+    baked = BakedSurface.bake(
+        model, prior, c2ws, k, cfg.bake_voxels_per_radius, cfg.bake_density_level
+    )
 
     def render(k, c2w, i, colour):
         out = baked.render_depth(k, c2w)
