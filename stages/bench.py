@@ -70,7 +70,9 @@ class BenchPlan(BaseModel):
 def plan(quick: bool) -> BenchPlan:
     if quick:
         return BenchPlan(
-            cases=[BenchCase(name="colon_q", shape="colon", frames=24, width=160, height=128, seed=7)],
+            cases=[
+                BenchCase(name="colon_q", shape="colon", frames=24, width=160, height=128, seed=7)
+            ],
             variants=["full", "no_prior", "plain"],
             sets=["nerf.train.steps=400", "mesh.method=tsdf"],
         )

@@ -144,8 +144,10 @@ def depth_sequence_metrics(
         )
 
     def mean(protocol: str) -> dict[str, float]:
-        rows = [f[protocol] for f in per_frame]
-        return {k: float(np.nanmean([r[k] for r in rows])) for k in DEPTH_KEYS}
+        rows = [f[protocol] for f in per_frame if f[protocol]["valid"] > 0]
+        return {
+            k: float(np.mean([r[k] for r in rows])) if rows else float("nan") for k in DEPTH_KEYS
+        }
 
     return {
         "median_scaled": mean("median_scaled"),

@@ -67,11 +67,11 @@ class BakedSurface:
         norm = np.linalg.norm(dc, axis=-1)
         d = (dc / norm[..., None]).reshape(-1, 3) @ np.asarray(c2w)[:3, :3].T
         o = np.broadcast_to(np.asarray(c2w)[:3, 3], d.shape)
-        if self._scene is None:
-            zero = np.zeros((k.height, k.width), np.float32)
-            return {"depth": zero, "opacity": zero.copy()}
-        rays = o3d.core.Tensor(np.concatenate([o, d], 1).astype(np.float32))
-        t = self._scene.cast_rays(rays)["t_hit"].numpy().reshape(k.height, k.width)
+        if self._scene is None:  # the field has no surface at the iso-level yet
+            t = np.full((k.height, k.width), np.inf)
+        else:
+            rays = o3d.core.Tensor(np.concatenate([o, d], 1).astype(np.float32))
+            t = self._scene.cast_rays(rays)["t_hit"].numpy().reshape(k.height, k.width)
         hit = np.isfinite(t)
         depth = np.where(hit, t / norm, 0.0).astype(np.float32)  # ray length -> z-depth
         if self.prior is not None and not hit.all():

@@ -147,8 +147,19 @@ class SamplingConfig(_Section):
     n_uniform: int = Field(
         6, ge=0, description="two_pass: how many of n_fine are stratified, not importance-drawn."
     )
+    render_coarse: int = Field(
+        32, ge=2, description="two_pass, rendering (eval mode): samples of the first pass."
+    )
+    render_fine: int = Field(
+        16, ge=1, description="two_pass, rendering (eval mode): importance samples per ray."
+    )
     spacing: Literal["log", "linear"] = Field(
         "log", description="Spacing of the first pass in depth (log: denser close to the camera)."
+    )
+    bounds: Literal["prior", "box"] = Field(
+        "prior",
+        description="Ray bounds from the lumen prior's ray_bounds (default), or from the scene "
+        "box (an ablation: a plain NeRF's fixed bounds).",
     )
     bounds_margin: float = Field(
         0.5, ge=0, description="The prior's wall is inflated by (1 + margin) to get the far bound."
@@ -224,7 +235,9 @@ class TrainConfig(_Section):
     device: Literal["auto", "cpu", "cuda"] = Field(
         "auto", description="auto: a GPU when torch sees one, else the CPU."
     )
-    threads: int = Field(0, ge=0, description="torch CPU threads (0: torch's default).")
+    threads: int = Field(
+        0, ge=0, description="torch CPU threads (0: the cores not busy with other processes)."
+    )
     eval_frames: int = Field(
         0, ge=0, description="Evaluate at most this many held-out frames (0: all of them)."
     )

@@ -111,10 +111,32 @@ class VMGrid(nn.Module):
     def forward(
         self, x: torch.Tensor, prep: tuple[torch.Tensor, ...] | None = None
     ) -> torch.Tensor:
+        if not torch.is_grad_enabled() and prep is None:
+            return self._forward_nograd(x)
         pidx, pw, lidx, lw = prep if prep is not None else self.prepare(x)
         plane = gather_interp(self.planes, pidx, pw)
         line = gather_interp(self.lines, lidx, lw)
         return (plane * line).view(x.shape[0], 3 * self.channels)
+
+    def _forward_nograd(self, x: torch.Tensor) -> torch.Tensor:
+        """Same values through F.grid_sample: ~3x faster when no gradient is needed (the
+        sampler's first pass, rendering), since no index set-up is kept for a backward."""
+        n, r = x.shape[0], self.channels
+        out = x.new_empty(n, 3, r)
+        kw = {"align_corners": True, "padding_mode": "border"}
+        poff, loff = 0, 0
+        for m, (a, b, c) in enumerate(self.PAIRS):
+            ra, rb, rc = self.res[a], self.res[b], self.res[c]
+            plane = self.planes[poff : poff + ra * rb].view(1, rb, ra, r).permute(0, 3, 1, 2)
+            line = self.lines[loff : loff + rc].view(1, rc, 1, r).permute(0, 3, 1, 2)
+            uv = torch.stack([x[:, a], x[:, b]], -1).view(1, n, 1, 2)
+            w = torch.stack([torch.zeros_like(x[:, c]), x[:, c]], -1).view(1, n, 1, 2)
+            pv = F.grid_sample(plane.contiguous(), uv, **kw).view(r, n)
+            lv = F.grid_sample(line.contiguous(), w, **kw).view(r, n)
+            out[:, m] = (pv * lv).T
+            poff += ra * rb
+            loff += rc
+        return out.view(n, 3 * r)
 
     @torch.no_grad()
     def upsampled(self, res: tuple[int, int, int]) -> VMGrid:

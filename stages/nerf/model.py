@@ -79,15 +79,21 @@ class NerfModel(nn.Module):
     def sample(self, o, d, near, far, jitter: bool, gen=None) -> torch.Tensor:
         s = self.cfg.sampling
         if s.sampler == "two_pass":
+            # Rendering needs fewer samples than training: the weights are settled by then.
+            n_coarse, n_fine, n_uniform = (
+                (s.n_coarse, s.n_fine, s.n_uniform)
+                if self.training
+                else (s.render_coarse, s.render_fine, 0)
+            )
             return two_pass(
                 self.density_scene,
                 o,
                 d,
                 near,
                 far,
-                s.n_coarse,
-                s.n_fine,
-                s.n_uniform,
+                n_coarse,
+                n_fine,
+                n_uniform,
                 s.spacing,
                 jitter,
                 gen,

@@ -52,23 +52,10 @@ def load_model(folder: Path | str, device: str | torch.device = "cpu") -> NerfMo
     return model.to(device).eval()
 
 
-def box_bounds(
-    box: SceneBox, o: torch.Tensor, d: torch.Tensor, near_min: float = 1e-3
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Slab intersection of scene-frame rays with the scene box (used without a prior)."""
-    lo = torch.as_tensor(box.lo, dtype=o.dtype, device=o.device)
-    hi = torch.as_tensor(box.hi, dtype=o.dtype, device=o.device)
-    inv = 1.0 / torch.where(d.abs() < 1e-9, torch.full_like(d, 1e-9), d)
-    t0, t1 = (lo - o) * inv, (hi - o) * inv
-    near = torch.minimum(t0, t1).amax(-1).clamp_min(near_min)
-    far = torch.maximum(t0, t1).amin(-1)
-    return near, torch.maximum(far, near * 1.5)
-
-
 def scene_bounds(model: NerfModel, prior, o: torch.Tensor, d: torch.Tensor):
     """near / far (scene depth) of scene-frame rays: from the prior, else from the box."""
     if prior is None:
-        return box_bounds(model.box, o, d)
+        return model.box.ray_bounds(o, d, model.cfg.sampling.near_fraction)
     from stages.nerf.train import PriorBounds
 
     near, far, _ = PriorBounds(prior, model.box, model.cfg).bounds(

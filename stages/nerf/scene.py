@@ -130,6 +130,18 @@ class SceneBox:
         y = torch.where(x < a, a - k * torch.log1p((a - x).clamp_min(0) / k), y)
         return (y - glo) * inv - 1.0
 
+    def ray_bounds(
+        self, o: torch.Tensor, d: torch.Tensor, near_min: float = 1e-3
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Slab intersection of scene-frame rays with the box: near (>= near_min), far."""
+        lo = torch.as_tensor(self.lo, dtype=o.dtype, device=o.device)
+        hi = torch.as_tensor(self.hi, dtype=o.dtype, device=o.device)
+        inv = 1.0 / torch.where(d.abs() < 1e-9, torch.full_like(d, 1e-9), d)
+        t0, t1 = (lo - o) * inv, (hi - o) * inv
+        near = torch.minimum(t0, t1).amax(-1).clamp_min(near_min)
+        far = torch.maximum(t0, t1).amin(-1)
+        return near, torch.maximum(far, near * 1.5)
+
     # --- construction -----------------------------------------------------------------------
     @classmethod
     def fit(

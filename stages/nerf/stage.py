@@ -23,7 +23,7 @@ from stages.nerf.data import FrameSet, holdout_split, pixel_rays
 from stages.nerf.eval import sequence_metrics
 from stages.nerf.render import MODEL_FILE, render_image, save_model
 from stages.nerf.scene import SceneBox
-from stages.nerf.train import CHECKPOINT, PriorBounds, Trainer, pick_device
+from stages.nerf.train import CHECKPOINT, PriorBounds, Trainer, auto_threads, pick_device
 
 
 def load_prior(centerline) -> object:
@@ -55,7 +55,7 @@ def fit_box(
     for c in c2w:
         cs = torch.tensor(box0.c2w_to_scene(c), dtype=torch.float32)
         o, d = pixel_rays(cs, K, u, v)
-        _, far, _ = pb.bounds(o, d, cfg.sampling.bounds_margin)
+        _, far, _ = pb.bounds(o, d, cfg.sampling.bounds_margin, wall=True)
         pts.append(box0.scene_to_world_np((o + far[:, None] * d).numpy()))
     f = cfg.field
     return SceneBox.fit(
@@ -92,6 +92,7 @@ class NerfSummary(Summary):
     depth: dict | None = None
     resumed_from: int = 0
     device: str = "cpu"
+    threads: int = 1
 
 
 class Nerf(Stage):
@@ -105,8 +106,14 @@ class Nerf(Stage):
 
     def run(self, ctx: StageContext) -> NerfSummary:
         cfg: NerfConfig = ctx.config  # type: ignore[assignment]
-        if cfg.train.threads:
-            torch.set_num_threads(cfg.train.threads)
+        threads = torch.get_num_threads()
+        torch.set_num_threads(cfg.train.threads or auto_threads())
+        try:
+            return self._run(ctx, cfg)
+        finally:
+            torch.set_num_threads(threads)
+
+    def _run(self, ctx: StageContext, cfg: NerfConfig) -> NerfSummary:
         device = pick_device(cfg.train.device)
         ingest, poses = ctx.input("ingest"), ctx.input("poses")
         prior = load_prior(ctx.input("centerline"))
@@ -148,6 +155,7 @@ class Nerf(Stage):
             depth=evaluation.get("depth"),
             resumed_from=start,
             device=str(device),
+            threads=torch.get_num_threads(),
         )
 
 

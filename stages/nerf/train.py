@@ -37,6 +37,22 @@ LOG_FIELDS = [
 ]
 
 
+def auto_threads() -> int:
+    """CPU threads for torch: the cores not already busy (1-minute load average), at least 1.
+
+    OpenMP threads that must share a core with other processes spin at every barrier: on a
+    loaded 2-core machine two threads ran a step ~10x slower than one."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    try:
+        load = os.getloadavg()[0]
+    except OSError:
+        load = 0.0
+    return int(min(cores, max(1, round(cores - load))))
+
+
 def pick_device(name: str) -> torch.device:
     if name == "cuda" or (name == "auto" and torch.cuda.is_available()):
         return torch.device("cuda")
@@ -54,8 +70,13 @@ class PriorBounds:
         rot = torch.as_tensor(self.box.rotation, dtype=d.dtype, device=d.device)
         return self.box.scene_to_world(o), (d @ rot.T) * self.box.scale
 
-    def bounds(self, o: torch.Tensor, d: torch.Tensor, margin: float):
-        """near, far (scene z-depth) and whether far is the wall (not the cap)."""
+    def bounds(self, o: torch.Tensor, d: torch.Tensor, margin: float, wall: bool = False):
+        """near, far (scene z-depth) and whether far is the wall (not the cap). With
+        sampling.bounds = "box" (an ablation) the sampling bounds come from the scene box;
+        `wall=True` always asks the prior."""
+        if self.cfg.sampling.bounds == "box" and not wall:
+            near, far = self.box.ray_bounds(o, d, self.cfg.sampling.near_fraction)
+            return near, far, torch.zeros_like(near, dtype=torch.bool)
         ow, dw = self._world_rays(o, d)
         near, far = self.prior.ray_bounds(
             ow, dw, margin, max_far=self.max_far, near_fraction=self.cfg.sampling.near_fraction
@@ -73,7 +94,7 @@ def initial_gain(frames: FrameSet, train: list[int], pb: PriorBounds, gamma: flo
     sampler = RaySampler(frames, train, 4096, 2, 0.0, gen)
     b = sampler.sample()
     o, d = frames.rays(b.frame, b.u, b.v)
-    _, far, has = pb.bounds(o, d, 0.0)
+    _, far, has = pb.bounds(o, d, 0.0, wall=True)
     r = (far * d.norm(dim=-1))[has] if has.any() else far * d.norm(dim=-1)
     lin = b.rgb.mean(-1).clamp_min(1e-3) ** gamma
     # albedo ~0.5 and an average cos ~0.7: gain / r^2 * 0.35 = intensity
@@ -220,7 +241,7 @@ class Trainer:
                 terms["core"] = losses.core_density(out["tau"], inc)
                 prior = prior + lc.core_weight * terms["core"]
             if lc.wall_weight > 0:
-                _, wall, has_wall = self.pb.bounds(o, d, 0.0)
+                _, wall, has_wall = self.pb.bounds(o, d, 0.0, wall=True)
                 terms["wall"] = losses.wall_attraction(
                     out["depth"], out["opacity"], wall, has_wall, lc.wall_tolerance
                 )
