@@ -60,7 +60,6 @@ def run_sfm(
     names = [Path(f.file).name for f in ingest.frames]
     index_of = {name: f.index for name, f in zip(names, ingest.frames, strict=True)}
     timings: dict[str, float] = {}
-    pycolmap.set_random_seed(cfg.seed)
     with colmap_logging(cfg.colmap_log), progress("features + matching", 2) as advance:
         t = time.perf_counter()
         image_dir, mask_dir = prepare_images(ingest, names, scratch, cfg)
@@ -99,7 +98,7 @@ def run_sfm(
                     progress,
                 )
             timings["merge_s"] = time.perf_counter() - t
-            merged = extended.num_reg_images() - largest.num_reg_images()
+            merged = max(0, extended.num_reg_images() - largest.num_reg_images())
             others = f" from {len(models) - 1} other model(s)" if len(models) > 1 else ""
             merge = (
                 f"continued the largest model ({largest.num_reg_images()} frames) with relaxed "
@@ -167,6 +166,7 @@ def extract(
     options.sift.max_num_features = cfg.sift_max_features
     options.sift.peak_threshold = cfg.sift_peak_threshold
     options.sift.domain_size_pooling = cfg.sift_domain_size_pooling
+    pycolmap.set_random_seed(cfg.seed)
     with colmap_errors("feature extraction"):
         # import first: ids then follow frame order (the parallel extractor writes new images in
         # completion order, which would make ids, pairs and so the poses vary between runs)
@@ -202,6 +202,7 @@ def match(database: Path, cfg: PosesConfig, n_images: int) -> None:
     matching.use_gpu = False
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = cfg.seed
+    pycolmap.set_random_seed(cfg.seed)
     with colmap_errors("feature matching"):
         if cfg.matcher == "exhaustive":
             pycolmap.match_exhaustive(
@@ -313,6 +314,9 @@ def _run_pipeline(
     start: int = 0,
 ) -> None:
     """Run an IncrementalPipeline; a registration callback feeds the progress bar."""
+    # COLMAP's global PRNG is per thread and also drawn from during extraction and matching:
+    # re-seed right before mapping so the mapper's choices do not depend on what ran before
+    pycolmap.set_random_seed(options.random_seed)
     with colmap_errors(label), pycolmap.Database.open(database) as db:
         pipeline = pycolmap.IncrementalPipeline(options, db, manager)
         with progress(label, n_images) as advance:

@@ -29,7 +29,7 @@ class TensorfConfig(_Section):
         96, ge=8, description="Grid nodes along the scene box's longest side at the start."
     )
     res_final: int = Field(
-        256, ge=8, description="Grid nodes along the longest side after the last upsampling."
+        384, ge=8, description="Grid nodes along the longest side after the last upsampling."
     )
     upsample_at: list[float] = Field(
         default_factory=lambda: [0.15, 0.3, 0.45],
@@ -99,7 +99,9 @@ class FieldConfig(_Section):
     )
     dir_bands: int = Field(4, ge=0, description="Frequency bands of the view direction.")
     density_bias: float = Field(
-        -10.0, description="Added to the raw density before the softplus (negative: starts empty)."
+        -5.0,
+        description="Added to the raw density before the softplus (negative: starts nearly "
+        "empty; -5 starts as a faint fog that the first hundred steps resolve).",
     )
     density_scale: float = Field(
         25.0, gt=0, description="Multiplies the softplus density (per scene unit = one radius)."
@@ -192,13 +194,13 @@ class LossConfig(_Section):
     core_weight: float = Field(1.0, ge=0, description="Prior: density in the lumen core.")
     core_fraction: float = Field(0.5, gt=0, lt=1, description="Core = wall shrunk to this.")
     wall_weight: float = Field(
-        0.2, ge=0, description="Prior: attraction of the surface to the estimated wall."
+        0.05, ge=0, description="Prior: attraction of the surface to the estimated wall."
     )
     wall_tolerance: float = Field(
-        0.3, ge=0, description="Relative depth error to the prior's wall tolerated for free."
+        0.5, ge=0, description="Relative depth error to the prior's wall tolerated for free."
     )
     normal_weight: float = Field(
-        0.1, ge=0, description="Prior: variance of the normals within each patch."
+        0.01, ge=0, description="Prior: variance of the normals within each patch."
     )
     smooth_order: Literal[1, 2] = Field(
         1, description="Smoothness on depth gradients (1) or second differences (2)."

@@ -1,0 +1,360 @@
+"""nerf stage: encodings, sampling, training, checkpoint resume, rendering, metrics.
+
+The fast tests use a tiny analytic scene (a straight textured tube closed by an end wall, lit by
+a light at the camera, 40 x 32 pixels) so they need neither the synth generator nor COLMAP.
+The accuracy run on a synthetic 60-frame colon is marked slow.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from stages.geometry import Intrinsics, look_at
+from stages.nerf.config import NerfConfig
+from stages.nerf.data import FrameSet, holdout_split, pixel_rays
+from stages.nerf.encodings import HashGrid, VMGrid
+from stages.nerf.eval import depth_errors, frame_metrics, sequence_metrics
+from stages.nerf.field import make_field
+from stages.nerf.render import density_grid, load_model, render_image, save_model
+from stages.nerf.sampling import composite, sample_pdf, spaced
+from stages.nerf.scene import SceneBox
+from stages.nerf.stage import fit_box
+from stages.nerf.train import Trainer
+from stages.prior import TubePrior
+
+RADIUS = 10.0
+END_Z = 60.0
+W, H = 40, 32
+
+
+def tube_frame(k: Intrinsics, c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact render of the tube x^2 + y^2 = R^2 closed at z = END_Z: sRGB image, z-depth."""
+    u, v = np.meshgrid(np.arange(k.width, dtype=float), np.arange(k.height, dtype=float))
+    dc = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], -1)
+    d = dc @ c2w[:3, :3].T
+    o = c2w[:3, 3]
+    a = d[..., 0] ** 2 + d[..., 1] ** 2
+    b = 2 * (o[0] * d[..., 0] + o[1] * d[..., 1])
+    c = o[0] ** 2 + o[1] ** 2 - RADIUS**2
+    t_cyl = (-b + np.sqrt(np.maximum(b * b - 4 * a * c, 0))) / np.maximum(2 * a, 1e-12)
+    t_cyl = np.where(a > 1e-12, t_cyl, np.inf)
+    t_end = np.where(d[..., 2] > 1e-9, (END_Z - o[2]) / np.maximum(d[..., 2], 1e-9), np.inf)
+    t = np.minimum(t_cyl, t_end)
+    p = o + t[..., None] * d
+    normal = np.where(
+        (t_cyl < t_end)[..., None],
+        -np.stack([p[..., 0], p[..., 1], np.zeros_like(t)], -1) / RADIUS,
+        np.array([0.0, 0.0, -1.0]),
+    )
+    theta = np.arctan2(p[..., 1], p[..., 0])
+    albedo = 0.55 + 0.3 * np.sin(5 * theta)[..., None] * np.sin(0.7 * p[..., 2])[..., None] * [
+        1.0,
+        0.6,
+        0.5,
+    ]
+    albedo = albedo + 0.15 * np.sin(0.5 * p[..., 0] + 0.3 * p[..., 2])[..., None]
+    r = t * np.linalg.norm(d, axis=-1)
+    cos = np.clip(-(normal * d).sum(-1) / np.linalg.norm(d, axis=-1), 0, 1)
+    lin = np.clip(albedo * (60.0 * cos / r**2 + 0.02)[..., None], 0, 1)
+    rgb = (lin ** (1 / 2.2) * 255).round().astype(np.uint8)
+    depth = (t * dc[..., 2]).astype(np.float32)  # dc z = 1: t is the z-depth
+    return rgb, depth
+
+
+def tube_poses(n: int) -> list[np.ndarray]:
+    poses = []
+    for i in range(n):
+        z = 2.0 + 1.2 * i
+        eye = np.array([0.8 * np.sin(0.4 * i), 0.6 * np.cos(0.3 * i), z])
+        poses.append(look_at(eye, np.array([0.0, 0.0, z + 30.0]), np.array([0.0, -1.0, 0.0])))
+    return poses
+
+
+def intrinsics() -> Intrinsics:
+    f = 0.5 * W / np.tan(np.radians(45))
+    return Intrinsics(width=W, height=H, fx=f, fy=f, cx=(W - 1) / 2, cy=(H - 1) / 2)
+
+
+def tube_prior() -> TubePrior:
+    z = np.linspace(-5.0, END_Z + 5, 30)
+    return TubePrior(np.stack([np.zeros_like(z), np.zeros_like(z), z], 1), RADIUS)
+
+
+def tiny_config(**train) -> NerfConfig:
+    cfg = NerfConfig()
+    cfg.field.tensorf.res_init = 24
+    cfg.field.tensorf.res_final = 40
+    cfg.sampling.n_coarse = 32
+    cfg.sampling.n_fine = 16
+    cfg.sampling.n_uniform = 4
+    cfg.train.batch_rays = 256
+    cfg.train.steps = 80
+    cfg.train.checkpoint_every = 20
+    for k, v in train.items():
+        setattr(cfg.train, k, v)
+    return cfg
+
+
+def tiny_setup(cfg: NerfConfig, n_frames: int = 10):
+    k = intrinsics()
+    poses = tube_poses(n_frames)
+    renders = [tube_frame(k, p) for p in poses]
+    images = np.stack([r[0] for r in renders]).astype(np.float32) / 255.0
+    masks = np.ones(images.shape[:3], bool)
+    prior = tube_prior()
+    K = (k.fx, k.fy, k.cx, k.cy)
+    box = fit_box(poses, K, (H, W), prior, cfg)
+    c2w_s = np.stack([box.c2w_to_scene(p) for p in poses])
+    ids = list(range(n_frames))
+    frames = FrameSet(images, masks, c2w_s, K, ids, torch.device("cpu"))
+    train, held = holdout_split(ids, cfg.train.holdout_every)
+    return frames, train, held, prior, box, k, poses, [r[1] for r in renders]
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+# --- pieces -------------------------------------------------------------------------------------
+
+
+def test_vm_grid_fast_path_matches_and_upsampling_keeps_values():
+    g = VMGrid((9, 7, 13), 4)
+    x = torch.rand(500, 3) * 2.2 - 1.1
+    with_grad = g(x)
+    with torch.no_grad():
+        fast = g(x)
+    assert torch.allclose(with_grad, fast, atol=1e-6)
+    with_grad.square().sum().backward()
+    assert g.planes.grad is not None and g.planes.grad.abs().sum() > 0
+    # Refining 9 -> 17 nodes (2x - 1) keeps the bilinear function exactly.
+    fine = g.upsampled((17, 13, 25))
+    inside = torch.rand(300, 3) * 2 - 1
+    assert torch.allclose(fine(inside), g(inside), atol=1e-5)
+
+
+@pytest.mark.parametrize("encoding", ["tensorf", "hashgrid", "positional"])
+def test_fields_share_one_interface(encoding):
+    cfg = NerfConfig().field
+    cfg.encoding = encoding
+    cfg.hashgrid.log2_size = 12
+    cfg.hashgrid.max_res = 64
+    cfg.positional.width = 32
+    field = make_field(cfg, (2.0, 2.0, 4.0))
+    x = torch.rand(64, 3) * 2 - 1
+    sigma, feat = field(x)
+    albedo = field.decode(feat)
+    assert sigma.shape == (64,) and (sigma >= 0).all()
+    assert albedo.shape == (64, 3) and ((albedo >= 0) & (albedo <= 1)).all()
+    assert field.density(torch.full((2, 3), 1.5)).abs().sum() == 0  # outside the box
+    (sigma.sum() + albedo.sum()).backward()
+    groups = field.param_groups(0.02, 1e-3)
+    assert sum(len(g["params"]) for g in groups) == len(list(field.parameters()))
+
+
+def test_hashgrid_dense_and_hashed_levels():
+    h = HashGrid(levels=4, features=2, log2_size=10, base_res=4, max_res=32)
+    assert h.dense[0] and not h.dense[-1]
+    out = h(torch.rand(10, 3) * 2 - 1)
+    assert out.shape == (10, 8)
+
+
+def test_sampling_and_compositing():
+    near, far = torch.full((4,), 0.5), torch.full((4,), 8.0)
+    t = spaced(near, far, 32, "log")
+    assert (t[:, 1:] > t[:, :-1]).all() and t.min() >= 0.5 and t.max() <= 8.0
+    sigma = torch.zeros(4, 32)
+    sigma[:, 20] = 1e4  # an opaque wall at sample 20
+    w, _ = composite(t, sigma, torch.ones(4), far)
+    assert torch.allclose(w.sum(1), torch.ones(4), atol=1e-4)
+    assert torch.allclose((w * t).sum(1), t[:, 20], atol=1e-3)
+    fine = sample_pdf(t, w, 16)
+    assert ((fine - t[:, 20:21]).abs() < (t[:, 21:22] - t[:, 19:20])).all()
+
+
+def test_depth_metrics():
+    gt = np.full((4, 5), 10.0)
+    assert depth_errors(gt[gt > 0], gt[gt > 0])["abs_rel"] == 0
+    m = frame_metrics(gt * 2, gt)  # a global scale is removed by median scaling
+    assert m["abs_rel"] < 1e-12 and m["a1"] == 1.0 and abs(m["scale"] - 0.5) < 1e-12
+    raw = frame_metrics(gt * 1.1, gt, scale=1.0)
+    assert abs(raw["abs_rel"] - 0.1) < 1e-9 and abs(raw["rmse"] - 1.0) < 1e-9
+    seq = sequence_metrics([gt * 2, gt * 2], [gt, gt])
+    assert seq["sequence_scaled"]["abs_rel"] < 1e-12 and seq["unscaled"]["abs_rel"] > 0.9
+
+
+def test_holdout_rule():
+    train, held = holdout_split(list(range(20)), 8)
+    assert held == [0, 8, 16] and 0 not in train and len(train) == 17
+
+
+# --- training -------------------------------------------------------------------------------
+
+
+def test_training_lowers_the_loss_and_renders_z_depth(tmp_path):
+    cfg = tiny_config(steps=100)
+    frames, train, held, prior, box, k, poses, depths = tiny_setup(cfg)
+    tr = Trainer(cfg, frames, train, prior, box, tmp_path, log=lambda m: None)
+    tr.fit()
+    photo = [r["photo"] for r in tr.rows]
+    assert np.mean(photo[-3:]) < 0.5 * np.mean(photo[:3])
+    tr.write_log(tmp_path / "train_log.csv")
+    assert (tmp_path / "train_log.csv").read_text().startswith("step,loss")
+    save_model(tmp_path / "model.pt", tr.model)
+    model = load_model(tmp_path)
+    out = render_image(model, prior, k, poses[held[0]])
+    assert out["depth"].shape == (H, W) and out["depth"].dtype == np.float32
+    assert out["rgb"].shape == (H, W, 3) and out["opacity"].shape == (H, W)
+    gt = depths[held[0]]
+    ok = out["depth"] > 0
+    assert ok.mean() > 0.9
+    # World units, z-depth: unscaled, the rendering is already close to the truth.
+    ratio = np.median(out["depth"][ok] / gt[ok])
+    assert 0.7 < ratio < 1.4, ratio
+    grid = density_grid(model, resolution=24)
+    assert grid.values.ndim == 3 and max(grid.values.shape) == 24
+    assert np.isfinite(grid.values).all() and grid.values.max() > 0
+
+
+def test_checkpoint_resume_continues_and_matches(tmp_path):
+    cfg = tiny_config(steps=40, checkpoint_every=20)
+    setup = tiny_setup(cfg)
+    frames, train, _, prior, box = setup[:5]
+    ref = Trainer(cfg, frames, train, prior, box, tmp_path / "a", log=lambda m: None)
+    ref.fit()
+    (tmp_path / "b").mkdir()
+    first = Trainer(cfg, frames, train, prior, box, tmp_path / "b", log=lambda m: None)
+    for _ in range(20):
+        first.step()
+    first.save_checkpoint()  # ... then the process is killed
+    again = Trainer(cfg, frames, train, prior, box, tmp_path / "b", log=lambda m: None)
+    assert again.try_resume() and again.step_i == 20
+    again.fit()
+    assert again.step_i == 40
+    for (name, a), b in zip(ref.model.state_dict().items(), again.model.state_dict().values()):
+        assert torch.allclose(a, b, atol=1e-4, rtol=1e-3), name
+
+
+def test_scene_box_warp_is_monotonic_and_identity_in_core():
+    box = SceneBox(np.zeros(3), np.eye(3), 1.0, -np.ones(3) * 8, np.ones(3) * 8, -np.ones(3), np.ones(3))
+    x = torch.linspace(-8, 8, 201)[:, None].expand(-1, 3).contiguous()
+    g = box.to_grid(x)[:, 0]
+    assert (g[1:] > g[:-1]).all() and abs(g[0] + 1) < 1e-5 and abs(g[-1] - 1) < 1e-5
+    core = x[:, 0].abs() <= 1
+    slope = (g[core][1:] - g[core][:-1]) / (x[core, 0][1:] - x[core, 0][:-1])
+    assert torch.allclose(slope, slope[0].expand_as(slope), rtol=1e-3)
+    o, d = pixel_rays(torch.eye(4), (10.0, 10.0, 5.0, 5.0), torch.tensor([5.0]), torch.tensor([5.0]))
+    assert torch.allclose(d, torch.tensor([[0.0, 0.0, 1.0]]))
+
+
+# --- the stage in the pipeline, killed and resumed -------------------------------------------
+
+
+def write_case(folder: Path, n: int = 10) -> None:
+    k = intrinsics()
+    (folder / "frames").mkdir(parents=True)
+    (folder / "gt" / "depth").mkdir(parents=True)
+    poses = tube_poses(n)
+    for i, p in enumerate(poses):
+        rgb, depth = tube_frame(k, p)
+        cv2.imwrite(str(folder / "frames" / f"{i:06d}.png"), rgb[:, :, ::-1])
+        np.save(folder / "gt" / "depth" / f"{i:06d}.npy", depth)
+    (folder / "intrinsics.json").write_text(json.dumps(k.model_dump(exclude={"dist"})))
+    (folder / "gt" / "poses.json").write_text(
+        json.dumps({"convention": "opencv_c2w", "units": "mm", "poses": [p.tolist() for p in poses]})
+    )
+
+
+def test_stage_resumes_after_a_kill(tmp_path, monkeypatch):
+    from pipeline.cli import prepare_case
+    from pipeline.config import load_config
+    from pipeline.runner import Pipeline
+    from pipeline.stage import Stage, Summary
+    from stages.ingest import Ingest
+    from stages.nerf import Nerf
+    from stages.nerf import train as train_mod
+    from stages.poses import Poses
+
+    class Centerline(Stage):
+        """Test stand-in: the known tube as prior.npz."""
+
+        name = "centerline"
+        needs = ("poses",)
+
+        def run(self, ctx):
+            tube_prior().save(ctx.out / "prior.npz")
+            return Summary()
+
+    write_case(tmp_path / "case")
+    stages = [Ingest, Poses, Centerline, Nerf]
+    sets = [
+        "poses.source=gt",
+        "ingest.drop_duplicates=false",
+        "ingest.drop_blurred=false",
+        "nerf.field.tensorf.res_init=24",
+        "nerf.field.tensorf.res_final=40",
+        "nerf.sampling.n_coarse=32",
+        "nerf.sampling.n_fine=16",
+        "nerf.train.batch_rays=256",
+        "nerf.train.steps=30",
+        "nerf.train.checkpoint_every=10",
+    ]
+    configs = load_config(stages, sets=sets, use_default_file=False)
+    case_dir = prepare_case(tmp_path / "case", tmp_path / "work", None, None)
+    pipe = Pipeline(stages)
+
+    real_step = train_mod.Trainer.step
+
+    def dying_step(self):
+        if self.step_i == 25:
+            raise KeyboardInterrupt("killed")
+        return real_step(self)
+
+    monkeypatch.setattr(train_mod.Trainer, "step", dying_step)
+    with pytest.raises(KeyboardInterrupt):
+        pipe.run(case_dir, configs, quiet=True)
+    assert list(case_dir.glob(".04_nerf.tmp-*/checkpoint.pt"))
+    monkeypatch.setattr(train_mod.Trainer, "step", real_step)
+    record = pipe.run(case_dir, configs, quiet=True)
+    summary = record.stages[-1].summary
+    assert summary["resumed_from"] == 20 and summary["steps"] == 30
+    out = case_dir / "04_nerf"
+    for name in ("model.pt", "train_log.csv", "loss.png", "metrics.json", "heldout.png"):
+        assert (out / name).is_file(), name
+    assert not (out / "checkpoint.pt").exists()
+    assert summary["depth"]["median_scaled"]["abs_rel"] < 1.0
+    rows = (out / "train_log.csv").read_text().splitlines()
+    assert rows[-1].startswith("30,")
+
+
+# --- accuracy (slow) ---------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_synthetic_colon_accuracy(tmp_path):
+    """Default config, GT poses, a 60-frame 320x256 synthetic colon: held-out depth AbsRel <=
+    0.10 and delta < 1.25 >= 0.90 with per-frame median scaling."""
+    pytest.importorskip("stages.centerline")
+    from pipeline.cli import all_stages, prepare_case
+    from pipeline.config import load_config
+    from pipeline.runner import Pipeline
+    from stages.synth import SynthConfig, generate_case
+
+    generate_case(tmp_path / "colon", SynthConfig(frames=60, width=320, height=256))
+    stages = [s for s in all_stages() if s.name in ("ingest", "poses", "centerline", "nerf")]
+    configs = load_config(stages, sets=["poses.source=gt"], use_default_file=False)
+    case_dir = prepare_case(tmp_path / "colon", tmp_path / "work", None, None)
+    record = Pipeline(stages).run(case_dir, configs, quiet=True)
+    summary = record.stages[-1].summary
+    m = summary["depth"]["median_scaled"]
+    assert m["abs_rel"] <= 0.10 and m["a1"] >= 0.90, m
