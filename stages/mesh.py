@@ -285,6 +285,8 @@ def tsdf_fuse(
     mult = float(sdf_trunc) / float(voxel)
     used = 0
     for fr in frames:
+        if not ((fr.depth > 0) & (fr.depth < depth_trunc)).any():
+            continue  # nothing to fuse (open3d aborts on a frame that touches no block)
         h, w = fr.depth.shape
         k = intrinsics
         if (w, h) != (k.width, k.height):

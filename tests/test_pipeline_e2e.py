@@ -11,6 +11,10 @@ import pytest
 from pipeline.cli import build_pipeline, main
 
 
+#: A tiny case: a short NeRF keeps the whole pipeline at about a minute on two CPU cores.
+TINY = ["--set", "nerf.train.steps=300", "--set", "mesh.eval_samples=50000"]
+
+
 def last_record(case: Path) -> dict:
     return json.loads(sorted((case / "runs").glob("*.json"))[-1].read_text())
 
@@ -32,12 +36,14 @@ def synth_case(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def first_run(synth_case: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, float]:
     wd = tmp_path_factory.mktemp("wd")
     t0 = time.perf_counter()
-    assert main(["run", str(synth_case / "video.mp4"), "--workdir", str(wd), "--quiet"]) == 0
+    args = ["run", str(synth_case / "video.mp4"), "--workdir", str(wd), "--quiet", *TINY]
+    assert main(args) == 0
     return wd / "colon", time.perf_counter() - t0
 
 
 def rerun(case: Path, *extra: str) -> None:
-    args = ["run", last_record(case)["input"], "--workdir", str(case.parent), "--quiet", *extra]
+    args = ["run", last_record(case)["input"], "--workdir", str(case.parent), "--quiet", *TINY]
+    args += extra
     assert main(args) == 0
 
 
@@ -48,6 +54,16 @@ def test_every_stage_ran_and_wrote_its_contract(first_run: tuple[Path, float]) -
     frames = json.loads((case / "01_ingest" / "frames.json").read_text())
     assert len(frames["frames"]) >= 12 and frames["intrinsics"]["width"] == 160
     assert frames["frames"][0]["source_index"] == 0
+    cameras = json.loads((case / "02_poses" / "cameras.json").read_text())
+    assert cameras["metric"] and sum(f["registered"] for f in cameras["frames"]) >= 14
+    depth = json.loads((case / "05_depth" / "metrics.json").read_text())
+    # a 300-step NeRF on 16 tiny frames: bounded, not paper-grade (the bench measures that)
+    assert depth["median_scaled"]["abs_rel"] < 0.25, depth["median_scaled"]
+    assert depth["median_scaled"]["delta1"] > 0.6, depth["median_scaled"]
+    mesh = json.loads((case / "06_mesh" / "metrics.json").read_text())
+    assert mesh["chamfer_pct_radius"] < 30, mesh
+    report = (case / "07_report" / "report.html").read_text()
+    assert "<html" in report.lower() and len(report) > 10_000
 
 
 def test_second_run_is_all_cached_and_fast(first_run: tuple[Path, float]) -> None:
