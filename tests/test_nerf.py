@@ -96,6 +96,7 @@ def tiny_config(**train) -> NerfConfig:
     cfg.train.batch_rays = 256
     cfg.train.steps = 80
     cfg.train.checkpoint_every = 20
+    cfg.train.time_budget_s = None  # step-based: deterministic, so resume can match exactly
     for k, v in train.items():
         setattr(cfg.train, k, v)
     return cfg
@@ -241,19 +242,25 @@ def test_checkpoint_resume_continues_and_matches(tmp_path):
     assert again.try_resume() and again.step_i == 20
     again.fit()
     assert again.step_i == 40
-    for (name, a), b in zip(ref.model.state_dict().items(), again.model.state_dict().values()):
+    for (name, a), b in zip(
+        ref.model.state_dict().items(), again.model.state_dict().values(), strict=True
+    ):
         assert torch.allclose(a, b, atol=1e-4, rtol=1e-3), name
 
 
 def test_scene_box_warp_is_monotonic_and_identity_in_core():
-    box = SceneBox(np.zeros(3), np.eye(3), 1.0, -np.ones(3) * 8, np.ones(3) * 8, -np.ones(3), np.ones(3))
+    box = SceneBox(
+        np.zeros(3), np.eye(3), 1.0, -np.ones(3) * 8, np.ones(3) * 8, -np.ones(3), np.ones(3)
+    )
     x = torch.linspace(-8, 8, 201)[:, None].expand(-1, 3).contiguous()
     g = box.to_grid(x)[:, 0]
     assert (g[1:] > g[:-1]).all() and abs(g[0] + 1) < 1e-5 and abs(g[-1] - 1) < 1e-5
     core = x[:, 0].abs() <= 1
     slope = (g[core][1:] - g[core][:-1]) / (x[core, 0][1:] - x[core, 0][:-1])
     assert torch.allclose(slope, slope[0].expand_as(slope), rtol=1e-3)
-    o, d = pixel_rays(torch.eye(4), (10.0, 10.0, 5.0, 5.0), torch.tensor([5.0]), torch.tensor([5.0]))
+    o, d = pixel_rays(
+        torch.eye(4), (10.0, 10.0, 5.0, 5.0), torch.tensor([5.0]), torch.tensor([5.0])
+    )
     assert torch.allclose(d, torch.tensor([[0.0, 0.0, 1.0]]))
 
 
@@ -271,7 +278,9 @@ def write_case(folder: Path, n: int = 10) -> None:
         np.save(folder / "gt" / "depth" / f"{i:06d}.npy", depth)
     (folder / "intrinsics.json").write_text(json.dumps(k.model_dump(exclude={"dist"})))
     (folder / "gt" / "poses.json").write_text(
-        json.dumps({"convention": "opencv_c2w", "units": "mm", "poses": [p.tolist() for p in poses]})
+        json.dumps(
+            {"convention": "opencv_c2w", "units": "mm", "poses": [p.tolist() for p in poses]}
+        )
     )
 
 
@@ -308,6 +317,7 @@ def test_stage_resumes_after_a_kill(tmp_path, monkeypatch):
         "nerf.train.batch_rays=256",
         "nerf.train.steps=30",
         "nerf.train.checkpoint_every=10",
+        "nerf.train.time_budget_s=null",
     ]
     configs = load_config(stages, sets=sets, use_default_file=False)
     case_dir = prepare_case(tmp_path / "case", tmp_path / "work", None, None)

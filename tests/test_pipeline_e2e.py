@@ -10,9 +10,8 @@ import pytest
 
 from pipeline.cli import build_pipeline, main
 
-
-#: A tiny case: a short NeRF keeps the whole pipeline at about a minute on two CPU cores.
-TINY = ["--set", "nerf.train.steps=300", "--set", "mesh.eval_samples=50000"]
+#: A tiny case: a short NeRF keeps the whole pipeline at about 2.5 minutes on two CPU cores.
+TINY = ["--set", "nerf.train.steps=600", "--set", "mesh.eval_samples=50000"]
 
 
 def last_record(case: Path) -> dict:
@@ -57,11 +56,12 @@ def test_every_stage_ran_and_wrote_its_contract(first_run: tuple[Path, float]) -
     cameras = json.loads((case / "02_poses" / "cameras.json").read_text())
     assert cameras["metric"] and sum(f["registered"] for f in cameras["frames"]) >= 14
     depth = json.loads((case / "05_depth" / "metrics.json").read_text())
-    # a 300-step NeRF on 16 tiny frames: bounded, not paper-grade (the bench measures that)
-    assert depth["median_scaled"]["abs_rel"] < 0.25, depth["median_scaled"]
-    assert depth["median_scaled"]["delta1"] > 0.6, depth["median_scaled"]
+    # a 600-step NeRF on 16 tiny frames (measured: AbsRel 0.11, δ1 0.92, Chamfer 9% of the
+    # radius): bounded, not paper-grade; the bench measures that
+    assert depth["median_scaled"]["abs_rel"] < 0.2, depth["median_scaled"]
+    assert depth["median_scaled"]["delta1"] > 0.8, depth["median_scaled"]
     mesh = json.loads((case / "06_mesh" / "metrics.json").read_text())
-    assert mesh["chamfer_pct_radius"] < 30, mesh
+    assert mesh["evaluated"] and mesh["chamfer_pct_radius"] < 20, mesh
     report = (case / "07_report" / "report.html").read_text()
     assert "<html" in report.lower() and len(report) > 10_000
 
@@ -77,24 +77,20 @@ def test_second_run_is_all_cached_and_fast(first_run: tuple[Path, float]) -> Non
 
 def test_config_change_reruns_that_stage_and_downstream_only(first_run: tuple[Path, float]) -> None:
     case, _ = first_run
-    pipe = build_pipeline()
-    last = pipe.stages[-1]
-    # a field of the last stage: everything upstream stays cached
-    key = next(iter(last.Config.model_fields))
-    default = getattr(last.Config(), key)
-    alt = _other_value(default)
-    rerun(case, "--set", f"{last.name}.{key}={alt}")
+    rerun(case, "--set", "mesh.smooth_iterations=2")
     st = statuses(case)
-    assert st[last.name] == "ran"
-    assert all(v == "cached" for k, v in st.items() if k != last.name)
-    rerun(case)  # back to the defaults: re-runs that stage again
-    assert statuses(case)[last.name] == "ran"
+    assert st["mesh"] == "ran" and st["report"] == "ran"
+    assert all(v == "cached" for k, v in st.items() if k not in ("mesh", "report")), st
+    rerun(case)  # back to the defaults: the mesh re-runs again
+    assert statuses(case)["mesh"] == "ran" and statuses(case)["nerf"] == "cached"
 
 
 def test_from_reruns_downstream(first_run: tuple[Path, float]) -> None:
     case, _ = first_run
-    rerun(case, "--from", "ingest")
-    assert set(statuses(case).values()) == {"ran"}
+    rerun(case, "--from", "depth")
+    st = statuses(case)
+    assert [st[k] for k in ("ingest", "poses", "centerline", "nerf")] == ["cached"] * 4
+    assert [st[k] for k in ("depth", "mesh", "report")] == ["ran"] * 3
 
 
 def test_deleted_file_makes_stage_stale(first_run: tuple[Path, float]) -> None:
@@ -103,13 +99,3 @@ def test_deleted_file_makes_stage_stale(first_run: tuple[Path, float]) -> None:
     rerun(case)
     assert statuses(case)["ingest"] == "ran"
     assert (case / "01_ingest" / "masks" / "000003.png").is_file()
-
-
-def _other_value(default: object) -> object:
-    if isinstance(default, bool):
-        return str(not default).lower()
-    if isinstance(default, int):
-        return default + 1
-    if isinstance(default, float):
-        return default * 0.9 if default else 0.1
-    raise AssertionError(f"pick a numeric or boolean first field, got {default!r}")

@@ -142,12 +142,12 @@ class SamplingConfig(_Section):
         description="two_pass: density-only pass without gradients, then resampled samples "
         "with gradients (fast); coarse_fine: the paper's stratified coarse + importance fine.",
     )
-    n_coarse: int = Field(64, ge=2, description="Samples of the first pass per ray.")
+    n_coarse: int = Field(48, ge=2, description="Samples of the first pass per ray.")
     n_fine: int = Field(
-        32, ge=1, description="Samples of the second pass per ray (importance + uniform)."
+        16, ge=1, description="Samples of the second pass per ray (importance + uniform)."
     )
     n_uniform: int = Field(
-        6, ge=0, description="two_pass: how many of n_fine are stratified, not importance-drawn."
+        4, ge=0, description="two_pass: how many of n_fine are stratified, not importance-drawn."
     )
     render_coarse: int = Field(
         32, ge=2, description="two_pass, rendering (eval mode): samples of the first pass."
@@ -182,6 +182,19 @@ class LossConfig(_Section):
     prior: bool = Field(True, description="L_prior: the anatomical prior terms.")
     smooth: bool = Field(True, description="L_smooth: edge-aware depth smoothness on patches.")
     geo: bool = Field(True, description="L_geo: depth consistency between adjacent frames.")
+    saturation: float = Field(
+        0.98,
+        gt=0,
+        description="Pixel channels at or above this (0..1) are clipped: L_photo only penalises "
+        "renderings darker than them (>1: off).",
+    )
+    photo_trim: float = Field(
+        0.0,
+        ge=0,
+        lt=1,
+        description="Leave this fraction of each batch's largest photometric residuals out of "
+        "L_photo (robustness to highlights the masks missed; 0: plain masked L2).",
+    )
     lambda_prior: float = Field(0.1, ge=0, description="lambda_1.")
     lambda_smooth: float = Field(0.05, ge=0, description="lambda_2.")
     lambda_geo: float = Field(0.01, ge=0, description="lambda_3.")
@@ -218,7 +231,13 @@ class LossConfig(_Section):
 class TrainConfig(_Section):
     """Optimisation, schedule, hold-out, checkpoints."""
 
-    steps: int = Field(1500, ge=1, description="Optimisation steps.")
+    steps: int = Field(1500, ge=1, description="Optimisation steps (at most).")
+    time_budget_s: float | None = Field(
+        240.0,
+        gt=0,
+        description="Optional budget of training time (s): the schedules run on max(step / "
+        "steps, time / budget) and training ends when either is done (null: all steps).",
+    )
     batch_rays: int = Field(1024, ge=16, description="Rays per step.")
     lr_grid: float = Field(0.02, gt=0, description="Learning rate of grid / hash parameters.")
     lr_mlp: float = Field(1e-3, gt=0, description="Learning rate of MLP parameters.")

@@ -2,8 +2,8 @@
 
 Every field offers the same small interface, which is all the sampler and the renderer use:
 `density(x)` (no colour work: the sampler's first pass), `forward(x, d)` -> (sigma, albedo),
-`param_groups(lr_grid, lr_mlp)` and `on_step(step, total)` (True when the parameters were
-replaced, e.g. a TensoRF upsampling, so the optimiser must be rebuilt).
+`param_groups(lr_grid, lr_mlp)` and `on_progress(p)` (True when the parameters were replaced,
+e.g. a TensoRF upsampling, so the optimiser must be rebuilt).
 
 A field with `deferred = True` returns per-sample *features* instead of albedo; the renderer
 composites them along the ray (normalised by opacity) and calls `decode(features, d)` once per
@@ -79,7 +79,9 @@ class RadianceField(nn.Module):
     def param_groups(self, lr_grid: float, lr_mlp: float) -> list[dict]:
         return [{"params": list(self.parameters()), "lr": lr_mlp, "name": "mlp"}]
 
-    def on_step(self, step: int, total: int) -> bool:
+    def on_progress(self, progress: float) -> bool:
+        """Called before every step with the training progress in [0, 1]; True when the
+        parameters were replaced (the optimiser must then be rebuilt)."""
         return False
 
     def extra_loss(self) -> torch.Tensor | None:
@@ -106,15 +108,15 @@ class TensorfField(RadianceField):
         cell = max(self.extent) / (longest - 1)
         return tuple(int(max(8, round(e / cell) + 1)) for e in self.extent)  # type: ignore
 
-    def schedule(self, total: int) -> list[tuple[int, tuple[int, int, int]]]:
-        """(step, resolution) of every upsampling."""
+    def schedule(self) -> list[tuple[float, tuple[int, int, int]]]:
+        """(progress, resolution) of every upsampling: log-spaced sizes up to res_final."""
         t = self.cfg.tensorf
         k = len(t.upsample_at)
         if k == 0 or t.res_final == t.res_init:
             return []
         sizes = torch.linspace(math.log(t.res_init), math.log(t.res_final), k + 1).exp()
         return [
-            (int(round(f * total)), self._res(int(round(float(s)))))
+            (float(f), self._res(int(round(float(s)))))
             for f, s in zip(t.upsample_at, sizes[1:], strict=True)
         ]
 
@@ -152,11 +154,14 @@ class TensorfField(RadianceField):
         self.app_grid = self.app_grid.upsampled(res)
         self.res_now = torch.tensor(res)
 
-    def on_step(self, step: int, total: int) -> bool:
-        for at, res in self.schedule(total):
-            if step == at and tuple(self.density_grid.res) != res:
-                self.set_resolution(res)
-                return True
+    def on_progress(self, progress: float) -> bool:
+        res = self._res(self.cfg.tensorf.res_init)
+        for at, r in self.schedule():
+            if progress >= at:
+                res = r
+        if tuple(self.density_grid.res) != res:
+            self.set_resolution(res)
+            return True
         return False
 
     def extra_loss(self) -> torch.Tensor | None:

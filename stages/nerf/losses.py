@@ -9,10 +9,27 @@ from __future__ import annotations
 import torch
 
 
-def photo(rgb: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
-    """Masked L2 (mean over usable rays and channels); specular pixels are masked by ingest."""
-    err = (rgb - target).square().mean(-1)
+def photo(
+    rgb: torch.Tensor,
+    target: torch.Tensor,
+    valid: torch.Tensor,
+    saturation: float = 2.0,
+    trim: float = 0.0,
+) -> torch.Tensor:
+    """Masked L2 (mean over usable rays and channels); specular pixels are masked by ingest.
+
+    A channel at or above `saturation` was clipped by the camera: it only says "at least this
+    bright", so a rendering brighter than it is not penalised (near walls under the endoscope's
+    light clip often; treating them as exact pushes the wall away to dim it). `trim` > 0 leaves
+    out that fraction of the batch's largest residuals."""
+    diff = rgb - target
+    diff = torch.where(target >= saturation, diff.clamp(max=0.0), diff)
+    err = diff.square().mean(-1)
     v = valid.to(err.dtype)
+    if trim > 0 and err.numel() > 1:
+        # Drop the largest residuals of the batch (highlights the mask missed, occlusions).
+        cut = torch.quantile(err.detach()[valid], 1.0 - trim) if valid.any() else err.max()
+        v = v * (err.detach() <= cut).to(err.dtype)
     return (err * v).sum() / v.sum().clamp_min(1.0)
 
 
@@ -74,7 +91,7 @@ def geometric_consistency(
     return (rel * v).sum() / v.sum().clamp_min(1.0)
 
 
-def prior_multiplier(step: int, total: int, start: float, decay: float) -> float:
-    """Coarse to fine: lambda_1 x start at step 0, decaying geometrically to x1 at decay*total."""
-    frac = step / max(total, 1)
-    return float(start ** max(0.0, 1.0 - frac / decay))
+def prior_multiplier(progress: float, start: float, decay: float) -> float:
+    """Coarse to fine: lambda_1 x start at the beginning, decaying geometrically to x1 when the
+    training progress reaches `decay`."""
+    return float(start ** max(0.0, 1.0 - progress / decay))

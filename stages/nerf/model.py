@@ -19,7 +19,7 @@ from torch import nn
 
 from stages.nerf.config import NerfConfig
 from stages.nerf.field import RadianceField, make_field
-from stages.nerf.sampling import composite, coarse_then_fine, spaced, two_pass
+from stages.nerf.sampling import coarse_then_fine, composite, spaced, two_pass
 from stages.nerf.scene import SceneBox
 
 

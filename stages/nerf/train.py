@@ -142,16 +142,23 @@ class Trainer:
         for g in groups:
             g["base_lr"] = g["lr"]
         try:  # the fused kernel is ~10x faster on a CPU for the grid's millions of entries
-            if os.environ.get("NERF_NO_FUSED"):
-                raise TypeError
             self.opt = torch.optim.Adam(groups, betas=(0.9, 0.99), fused=True)
         except (RuntimeError, TypeError, ValueError):
             self.opt = torch.optim.Adam(groups, betas=(0.9, 0.99))
         self._set_lr()
 
-    def _set_lr(self) -> None:
+    @property
+    def progress(self) -> float:
+        """Training progress in [0, 1]: steps done, or the time budget used when that is
+        further along. Every schedule (learning rate, upsampling, prior decay) follows it."""
         tc = self.cfg.train
-        f = tc.lr_decay ** (self.step_i / max(tc.steps, 1))
+        p = self.step_i / max(tc.steps, 1)
+        if tc.time_budget_s:
+            p = max(p, self.elapsed / tc.time_budget_s)
+        return min(p, 1.0)
+
+    def _set_lr(self) -> None:
+        f = self.cfg.train.lr_decay ** self.progress
         for g in self.opt.param_groups:
             g["lr"] = g["base_lr"] * f
 
@@ -170,6 +177,7 @@ class Trainer:
             "torch_rng": torch.get_rng_state(),
             "rows": self.rows,
         }
+        self.out_dir.mkdir(parents=True, exist_ok=True)
         tmp = self.ckpt_path.with_suffix(".pt.tmp")
         torch.save(state, tmp)
         os.replace(tmp, self.ckpt_path)
@@ -199,15 +207,15 @@ class Trainer:
     def step(self) -> dict[str, float]:
         cfg, lc = self.cfg, self.cfg.loss
         tc = cfg.train
-        total = tc.steps
-        if self.model.field.on_step(self.step_i, total):
+        progress = self.progress
+        if self.model.field.on_progress(progress):
             self.model.to(self.device)
-            self._rebuild_after_upsample()
+            self._build_optimizer()
         b = self.sampler.sample()
         o, d = self.frames.rays(b.frame, b.u, b.v)
         near, far, _ = self.pb.bounds(o, d, cfg.sampling.bounds_margin)
-        warm = cfg.shading.normal_warmup * total
-        mix = 1.0 if warm <= 0 else min(1.0, self.step_i / warm)
+        warm = cfg.shading.normal_warmup
+        mix = 1.0 if warm <= 0 else min(1.0, progress / warm)
         patches = b.n_patches * b.patch * b.patch
         need_normals = cfg.shading.enabled or (
             lc.prior and lc.normal_weight > 0 and b.n_patches > 0
@@ -225,14 +233,15 @@ class Trainer:
             shading_mix=mix,
         )
         terms: dict[str, torch.Tensor] = {}
-        photo = losses.photo(out["rgb"], b.rgb, b.valid)
+        sat, trim = lc.saturation, lc.photo_trim
+        photo = losses.photo(out["rgb"], b.rgb, b.valid, sat, trim)
         if "coarse_rgb" in out:
-            photo = photo + losses.photo(out["coarse_rgb"], b.rgb, b.valid)
+            photo = photo + losses.photo(out["coarse_rgb"], b.rgb, b.valid, sat, trim)
         terms["photo"] = photo
         loss = photo if lc.photo else photo.detach() * 0
         if lc.prior and lc.lambda_prior > 0:
             lam = lc.lambda_prior * losses.prior_multiplier(
-                self.step_i, total, lc.prior_start, lc.prior_decay
+                progress, lc.prior_start, lc.prior_decay
             )
             prior = photo.new_zeros(())
             if lc.core_weight > 0:
@@ -273,9 +282,6 @@ class Trainer:
         vals["loss"] = float(loss.detach())
         return vals
 
-    def _rebuild_after_upsample(self) -> None:
-        self._build_optimizer()
-
     def _geo_term(self, b, o, d, depth) -> torch.Tensor:
         """Warp frame t's rendered depth into its neighbour and compare with the depth rendered
         there (seed §3.4)."""
@@ -308,7 +314,7 @@ class Trainer:
             advance(self.step_i, info="resumed")
         window_rays, window_t = 0, 0.0
         acc: dict[str, list[float]] = {}
-        while self.step_i < tc.steps:
+        while self.step_i < tc.steps and self.progress < 1.0:
             t0 = time.perf_counter()
             vals = self.step()
             dt = time.perf_counter() - t0
@@ -319,7 +325,8 @@ class Trainer:
                 acc.setdefault(k, []).append(v)
             if not math.isfinite(vals["loss"]):
                 raise FloatingPointError(f"nerf loss is {vals['loss']} at step {self.step_i}")
-            if self.step_i % tc.log_every == 0 or self.step_i == tc.steps:
+            done = self.step_i >= tc.steps or self.progress >= 1.0
+            if self.step_i % tc.log_every == 0 or done:
                 row = {k: float(np.mean(v)) for k, v in acc.items()}
                 row.update(
                     step=self.step_i,
@@ -338,7 +345,7 @@ class Trainer:
                     )
             if advance is not None:
                 advance(1)
-            if self.step_i % tc.checkpoint_every == 0 and self.step_i < tc.steps:
+            if self.step_i % tc.checkpoint_every == 0 and not done:
                 self.save_checkpoint()
 
     def write_log(self, path: Path) -> None:
