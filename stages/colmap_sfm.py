@@ -134,12 +134,25 @@ def prepare_images(
         grey = cv2.cvtColor(ingest.image(i), cv2.COLOR_RGB2GRAY)
         if cfg.clahe:
             grey = clahe.apply(grey)
-        mask = ingest.mask(i)
+        mask = feature_mask(ingest, i, cfg.mask_grow_px)
         cv2.imwrite(str(image_dir / name), grey)
         cv2.imwrite(
             str(mask_dir / f"{name}.png"), mask if cfg.use_masks else np.full_like(mask, 255)
         )
     return image_dir, mask_dir
+
+
+def feature_mask(ingest: IngestView, i: int, grow_px: int) -> np.ndarray:
+    """The ingest mask with its specular holes grown by `grow_px`: keypoints on the glow around
+    a highlight move with the light, not with the tissue (the scope border is not grown)."""
+    mask = ingest.mask(i)
+    if grow_px <= 0:
+        return mask
+    fov = ingest.fov()
+    holes = ((mask == 0) & (fov > 0)).astype(np.uint8)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow_px + 1, 2 * grow_px + 1))
+    grown = cv2.dilate(holes, kernel) > 0
+    return np.where(grown, 0, mask).astype(np.uint8)
 
 
 def extract(

@@ -75,6 +75,12 @@ class PosesConfig(StageConfig):
     use_masks: bool = Field(
         True, description="Ignore features outside the ingest masks (scope border, speculars)."
     )
+    mask_grow_px: int = Field(
+        3,
+        ge=0,
+        description="Grow the specular holes of the mask by this much for feature extraction "
+        "(synthetic colon, 60 frames: ATE 1.46% of the path with 0, 0.25% with 5 px in total).",
+    )
     sift_peak_threshold: float = Field(
         0.002,
         gt=0,
