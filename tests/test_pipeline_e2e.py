@@ -11,7 +11,8 @@ import pytest
 from pipeline.cli import build_pipeline, main
 
 #: A tiny case: a short NeRF keeps the whole pipeline at about 2.5 minutes on two CPU cores.
-TINY = ["--set", "nerf.train.steps=600", "--set", "mesh.eval_samples=50000"]
+TINY = ["--set", "nerf.train.steps=600", "--set", "nerf.train.time_budget_s=null"]
+TINY += ["--set", "mesh.eval_samples=50000"]
 
 
 def last_record(case: Path) -> dict:

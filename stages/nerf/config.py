@@ -206,6 +206,12 @@ class LossConfig(_Section):
     )
     core_weight: float = Field(1.0, ge=0, description="Prior: density in the lumen core.")
     core_fraction: float = Field(0.5, gt=0, lt=1, description="Core = wall shrunk to this.")
+    core_reach: float = Field(
+        4.0,
+        gt=0,
+        description="The core penalty applies within this many radii of the camera (the tube "
+        "follows the camera path; far ahead of it, it is a straight guess).",
+    )
     wall_weight: float = Field(
         0.05, ge=0, description="Prior: attraction of the surface to the estimated wall."
     )

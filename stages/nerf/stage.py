@@ -132,6 +132,7 @@ class Nerf(Stage):
             ctx.log(f"resuming from checkpoint at step {start}")
         with ctx.progress("nerf", total=cfg.train.steps) as advance:
             trainer.fit(advance)
+        trainer.save_checkpoint()  # a crash while evaluating resumes here, not steps back
         trainer.write_log(ctx.out / "train_log.csv")
         plot_log(trainer.rows, ctx.out / "loss.png")
         save_model(

@@ -158,7 +158,7 @@ class Trainer:
         return min(p, 1.0)
 
     def _set_lr(self) -> None:
-        f = self.cfg.train.lr_decay ** self.progress
+        f = self.cfg.train.lr_decay**self.progress
         for g in self.opt.param_groups:
             g["lr"] = g["base_lr"] * f
 
@@ -206,7 +206,6 @@ class Trainer:
     # --- one step -----------------------------------------------------------------------------
     def step(self) -> dict[str, float]:
         cfg, lc = self.cfg, self.cfg.loss
-        tc = cfg.train
         progress = self.progress
         if self.model.field.on_progress(progress):
             self.model.to(self.device)
@@ -247,6 +246,9 @@ class Trainer:
             if lc.core_weight > 0:
                 x = o[:, None, :] + out["t"][..., None] * d[:, None, :]
                 inc = self.pb.in_core(x.reshape(-1, 3), lc.core_fraction).view(out["t"].shape)
+                # Only near the cameras: the tube follows the camera path, far ahead it is a
+                # straight guess (scene units are lumen radii).
+                inc = inc & (out["t"] * d.norm(dim=-1, keepdim=True) <= lc.core_reach)
                 terms["core"] = losses.core_density(out["tau"], inc)
                 prior = prior + lc.core_weight * terms["core"]
             if lc.wall_weight > 0:
