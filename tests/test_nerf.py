@@ -264,6 +264,24 @@ def test_scene_box_warp_is_monotonic_and_identity_in_core():
     assert torch.allclose(d, torch.tensor([[0.0, 0.0, 1.0]]))
 
 
+def test_paper_preset_trains_with_coarse_and_fine_passes(tmp_path):
+    from pipeline.config import deep_merge
+    from stages.nerf.config import PAPER_PRESET
+
+    raw = deep_merge(PAPER_PRESET, {"field": {"positional": {"width": 32}}})
+    cfg = NerfConfig.model_validate(raw)
+    assert cfg.field.encoding == "positional" and cfg.sampling.n_fine == 128
+    assert cfg.train.steps == 200000 and cfg.train.time_budget_s is None
+    cfg.sampling.n_coarse, cfg.sampling.n_fine = 16, 16
+    cfg.train.steps, cfg.train.batch_rays = 3, 64
+    frames, train, held, prior, box, k, poses, _ = tiny_setup(cfg, n_frames=4)
+    tr = Trainer(cfg, frames, train, prior, box, tmp_path, log=lambda m: None)
+    tr.fit()
+    assert tr.step_i == 3 and np.isfinite(tr.rows[-1]["loss"])
+    out = render_image(tr.model.eval(), prior, k, poses[0], colour=True)
+    assert out["depth"].shape == (H, W) and np.isfinite(out["rgb"]).all()
+
+
 # --- the stage in the pipeline, killed and resumed -------------------------------------------
 
 

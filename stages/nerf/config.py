@@ -287,6 +287,6 @@ PAPER_PRESET: dict = {
         "dir_bands": 4,
     },
     "sampling": {"sampler": "coarse_fine", "n_coarse": 64, "n_fine": 128, "spacing": "linear"},
-    "train": {"steps": 200000, "lr_mlp": 5e-4, "lr_decay": 0.1},
+    "train": {"steps": 200000, "time_budget_s": None, "lr_mlp": 5e-4, "lr_decay": 0.1},
     "loss": {"lambda_prior": 0.1, "lambda_smooth": 0.05, "lambda_geo": 0.01},
 }
