@@ -237,7 +237,7 @@ class LossConfig(_Section):
 class TrainConfig(_Section):
     """Optimisation, schedule, hold-out, checkpoints."""
 
-    steps: int = Field(1000, ge=1, description="Optimisation steps (at most).")
+    steps: int = Field(1500, ge=1, description="Optimisation steps (at most).")
     time_budget_s: float | None = Field(
         240.0,
         gt=0,

@@ -19,7 +19,6 @@ from stages.nerf.config import NerfConfig
 from stages.nerf.data import pixel_rays
 from stages.nerf.model import NerfModel
 from stages.nerf.scene import SceneBox
-from stages.nerf.train import PriorBounds
 
 MODEL_FILE = "model.pt"
 
@@ -57,6 +56,8 @@ def scene_bounds(model: NerfModel, prior, o: torch.Tensor, d: torch.Tensor):
     """near / far (scene depth) of scene-frame rays: from the prior, else from the box."""
     if prior is None:
         return model.box.ray_bounds(o, d, model.cfg.sampling.near_fraction)
+    from stages.nerf.train import PriorBounds
+
     near, far, _ = PriorBounds(prior, model.box, model.cfg).bounds(
         o, d, model.cfg.sampling.bounds_margin
     )

@@ -8,6 +8,7 @@ after a kill (the stage is resumable, its temporary folder survives).
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
@@ -16,8 +17,10 @@ import torch
 
 from pipeline.errors import EndopipeError
 from pipeline.stage import Stage, StageContext, Summary, write_json
+from stages.nerf import losses
 from stages.nerf.config import NerfConfig
 from stages.nerf.data import FrameSet, holdout_split, pixel_rays
+from stages.nerf.eval import sequence_metrics
 from stages.nerf.render import MODEL_FILE, render_image, save_model
 from stages.nerf.scene import SceneBox
 from stages.nerf.train import CHECKPOINT, PriorBounds, Trainer, auto_threads, pick_device
@@ -86,7 +89,6 @@ class NerfSummary(Summary):
     rays_per_s: float
     render_ms: float | None = None
     heldout_psnr: float | None = None
-    heldout_ssim: float | None = None
     depth: dict | None = None
     resumed_from: int = 0
     device: str = "cpu"
@@ -151,9 +153,7 @@ class Nerf(Stage):
             rays_per_s=round(rays_per_s, 1),
             render_ms=evaluation.get("render_ms"),
             heldout_psnr=evaluation.get("psnr"),
-            heldout_ssim=evaluation.get("ssim"),
-            depth={k: v for k, v in evaluation.get("depth", {}).items() if k != "per_frame"}
-            or None,
+            depth=evaluation.get("depth"),
             resumed_from=start,
             device=str(device),
             threads=torch.get_num_threads(),
@@ -161,33 +161,33 @@ class Nerf(Stage):
 
 
 def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) -> dict:
-    """Render the held-out frames: PSNR / SSIM on usable pixels, depth metrics (both protocols
-    of DESIGN §6) against ground truth when the case has it."""
+    """Render the held-out frames: PSNR on usable pixels, depth metrics against ground truth."""
     from stages.io.ground_truth import GroundTruth
-    from stages.metrics import depth_sequence_metrics, image_metrics
 
     held = held_ids[: cfg.train.eval_frames] if cfg.train.eval_frames else held_ids
     gt = GroundTruth(ingest.gt_dir) if ingest.gt_dir is not None else None
-    fov_file = ingest.folder / "fov_mask.png"
-    fov = ingest.fov() > 127 if fov_file.is_file() else None
     pos = {i: p for p, i in enumerate(ids)}
-    preds, gts, gt_ids, images, times, previews = [], [], [], [], [], []
+    preds, gts, fovs, mses, times, previews = [], [], [], [], [], []
     for i in held:
         t0 = time.perf_counter()
         out = render_image(model, prior, k, c2w[pos[i]])
         times.append(time.perf_counter() - t0)
         img = ingest.image(i).astype(np.float32) / 255.0
-        images.append(image_metrics(out["rgb"], img, ingest.mask(i) > 127))
+        m = ingest.mask(i) > 127
+        mses.append(float(((out["rgb"] - img) ** 2).mean(-1)[m].mean()) if m.any() else np.nan)
         previews.append((img, out))
-        g = gt.depth(ingest.frames[i].source_index) if gt is not None else None
-        if g is not None:
-            if g.shape != out["depth"].shape:
-                import cv2
+        if gt is not None:
+            g = gt.depth(ingest.frames[i].source_index)
+            if g is not None:
+                if g.shape != out["depth"].shape:
+                    import cv2
 
-                g = cv2.resize(g, out["depth"].shape[::-1], interpolation=cv2.INTER_NEAREST)
-            preds.append(out["depth"])
-            gts.append(g)
-            gt_ids.append(i)
+                    g = cv2.resize(g, out["depth"].shape[::-1], interpolation=cv2.INTER_NEAREST)
+                preds.append(out["depth"])
+                gts.append(g)
+                fovs.append(
+                    ingest.fov() > 127 if (ingest.folder / "fov_mask.png").is_file() else None
+                )
     depth_ms = []
     for i in held[:3]:  # what the depth stage pays per frame: depth and opacity only
         t0 = time.perf_counter()
@@ -198,11 +198,11 @@ def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) 
         "render_ms": round(float(np.median(depth_ms)), 1) if depth_ms else None,
         "render_rgb_ms": round(1000 * float(np.median(times)), 1) if times else None,
     }
-    if images:
-        result["psnr"] = round(float(np.mean([m["psnr"] for m in images])), 3)
-        result["ssim"] = round(float(np.mean([m["ssim"] for m in images])), 4)
+    if mses:
+        result["psnr"] = round(float(np.nanmean([losses.psnr(m) for m in mses])), 3)
     if preds:
-        result["depth"] = depth_sequence_metrics(preds, gts, [fov] * len(preds), gt_ids)
+        result["depth"] = sequence_metrics(preds, gts, fovs)
+        result["depth_frames"] = len(preds)
     if previews:
         write_preview(ctx.out / "heldout.png", previews[:4], gts[:4] if gts else None)
     return result
@@ -255,3 +255,7 @@ def plot_log(rows: list[dict], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def describe_config() -> str:
+    return json.dumps(NerfConfig().model_dump(mode="json"), indent=1)
