@@ -13,7 +13,7 @@ from pydantic import Field
 from pipeline.stage import Stage, StageConfig, StageContext, Summary, write_json
 from stages.io.ground_truth import open_ground_truth
 from stages.io.video_writer import write_mp4
-from stages.metrics import depth_sequence_metrics, image_metrics
+from stages.metrics import affine_sequence_metrics, depth_sequence_metrics, image_metrics
 
 PNG_MAX = 65535
 
@@ -27,8 +27,11 @@ class DepthConfig(StageConfig):
     bake_voxels_per_radius: int = Field(
         24, ge=4, le=256, description="Baked surface: grid nodes per lumen radius."
     )
-    bake_density_level: float = Field(
-        3.0, gt=0, description="Baked surface: density iso-level, per lumen radius."
+    bake_density_level: float | None = Field(
+        None,
+        gt=0,
+        description="Baked surface: density iso-level, per lumen radius (None: calibrated so "
+        "that the baked surface passes through the field's rendered surface).",
     )
     preview: bool = Field(True, description="Write preview.mp4 (RGB | depth | error).")
     preview_fps: int = Field(10, ge=1, description="Frame rate of preview.mp4.")
@@ -47,6 +50,7 @@ class DepthSummary(Summary):
     gt_kind: str | None = None
     median_scaled: dict | None = None
     sequence_scaled: dict | None = None
+    affine_invariant: dict | None = None
     heldout_psnr: float | None = None
     heldout_ssim: float | None = None
 
@@ -112,7 +116,10 @@ class Depth(Stage):
         metrics = evaluate(ctx, ingest, depths, gt_depths, rgbs)
         write_json(ctx.out / "metrics.json", metrics)
         if cfg.preview:
-            write_preview(ctx.out / "preview.mp4", ingest, depths, gt_depths, cfg.preview_fps)
+            affine = metrics.get("gt_kind") == "relative"
+            write_preview(
+                ctx.out / "preview.mp4", ingest, depths, gt_depths, cfg.preview_fps, affine
+            )
         ms = 1000 * float(np.median(times[1:] if len(times) > 1 else times))
         ctx.log(
             f"{len(depths)} depth maps, {ms:.0f} ms per frame ({cfg.renderer}; "
@@ -128,6 +135,7 @@ class Depth(Stage):
             gt_kind=metrics.get("gt_kind"),
             median_scaled=metrics.get("median_scaled"),
             sequence_scaled=metrics.get("sequence_scaled"),
+            affine_invariant=metrics.get("affine_invariant"),
             heldout_psnr=metrics.get("heldout_psnr"),
             heldout_ssim=metrics.get("heldout_ssim"),
         )
@@ -192,13 +200,14 @@ def evaluate(
     fov = ingest.fov() > 0
     if gt_depths:
         ids = sorted(gt_depths)
-        metrics.update(
-            depth_sequence_metrics(
-                [depths[i] for i in ids], [gt_depths[i] for i in ids], [fov] * len(ids), ids
-            )
-        )
         gt = open_ground_truth(Path(ctx.case.gt_dir))
-        metrics["gt_kind"] = getattr(gt, "kind", "exact")
+        kind = getattr(gt, "kind", "exact")
+        # A relative ground truth (an affine proxy of depth) supports no metric protocol.
+        sequence = affine_sequence_metrics if kind == "relative" else depth_sequence_metrics
+        metrics.update(
+            sequence([depths[i] for i in ids], [gt_depths[i] for i in ids], [fov] * len(ids), ids)
+        )
+        metrics["gt_kind"] = kind
     if rgbs:
         ids = sorted(rgbs)
         per = {
@@ -224,13 +233,18 @@ def colourise(depth: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return rgb
 
 
-def error_map(depth: np.ndarray, gt: np.ndarray) -> np.ndarray:
-    """Per-pixel relative error after median scaling, 0..0.3 mapped to the colour map."""
+def error_map(depth: np.ndarray, gt: np.ndarray, affine: bool = False) -> np.ndarray:
+    """Per-pixel relative error after median scaling (or, for a relative ground truth, after
+    the least-squares scale and shift), 0..0.3 mapped to the colour map."""
     valid = (gt > 0) & (depth > 0)
     err = np.zeros_like(depth)
-    if valid.any():
-        s = np.median(gt[valid]) / np.median(depth[valid])
-        err[valid] = np.abs(depth[valid] * s - gt[valid]) / gt[valid]
+    if valid.sum() > 1:
+        p, g = depth[valid].astype(np.float64), gt[valid].astype(np.float64)
+        if affine:
+            (s, b), *_ = np.linalg.lstsq(np.stack([p, np.ones_like(p)], 1), g, rcond=None)
+        else:
+            s, b = np.median(g) / np.median(p), 0.0
+        err[valid] = np.abs(p * s + b - g) / g
     out = colourise(err, 0.0, 0.3)
     out[~valid] = 0
     return out
@@ -242,6 +256,7 @@ def write_preview(
     depths: dict[int, np.ndarray],
     gt_depths: dict[int, np.ndarray],
     fps: int,
+    affine: bool = False,
 ) -> None:
     """RGB | depth | error (when GT exists), one frame per registered frame."""
     all_d = np.concatenate([d[d > 0] for d in depths.values()]) if depths else np.ones(1)
@@ -250,7 +265,7 @@ def write_preview(
     for i, d in depths.items():
         panels = [ingest.image(i), colourise(d, lo, hi)]
         if i in gt_depths:
-            panels.append(error_map(d, gt_depths[i]))
+            panels.append(error_map(d, gt_depths[i], affine))
         frames.append(np.concatenate(panels, axis=1))
     if frames:
         write_mp4(path, frames, fps)

@@ -97,12 +97,12 @@ class MeshConfig(StageConfig):
         description="Marching cubes: evaluate the density where |prior signed distance| < "
         "band x local radius (elsewhere nothing is extracted).",
     )
-    density_level: float = Field(
-        3.0,
+    density_level: float | None = Field(
+        None,
         gt=0,
         description="Marching cubes: iso-level of the density, per lumen radius (the NeRF's "
-        "scene units; sigma in world units = level / radius). Low levels match the rendered "
-        "depth best (2-5 on a synthetic colon).",
+        "scene units; sigma in world units = level / radius). None: calibrated from the field, "
+        "the density at its rendered surface (a fixed level sits in front of it).",
     )
     cull_unseen: bool = Field(
         True,
@@ -481,6 +481,10 @@ def cull_unseen(
     return RawMesh(v, f[seen], mesh.colours), float(seen.mean())
 
 
+#: Iso-level (per lumen radius) when the field gives no calibration (no opaque ray).
+DEFAULT_DENSITY_LEVEL = 3.0
+
+
 def nerf_density_fn(model: Any) -> DensityFn:
     """density_fn(points (N, 3) world) -> sigma (N,) per world unit, of a stages.nerf model."""
     box = model.box
@@ -499,14 +503,17 @@ def density_mesh(
     cfg: MeshConfig,
     depth_trunc: float,
     device: str | torch.device = "cpu",
+    level: float | None = None,
 ) -> tuple[RawMesh, dict[str, float]]:
-    """Marching cubes of a density function in the prior's band, over the frustums' box."""
+    """Marching cubes of a density function in the prior's band, over the frustums' box, at
+    `level` (per world unit; None: cfg.density_level)."""
     radius = float(prior.typical_radius)
     spacing = radius / cfg.mc_voxels_per_radius
     k = intrinsics
     lo, hi = frustum_box(c2ws, k.matrix(), k.width, k.height, depth_trunc)
     grid = band_density_grid(density_fn, prior, lo, hi, spacing, cfg.band, cfg.chunk, device)
-    level = cfg.density_level / radius
+    if level is None:
+        level = (cfg.density_level or DEFAULT_DENSITY_LEVEL) / radius
     mesh = marching_cubes_mesh(grid, level)
     info = {
         "voxel_size": spacing,
@@ -787,7 +794,7 @@ class Mesh(Stage):
         if cfg.method == "tsdf":
             raw, info = fuse_depth_folder(depth_dir, poses, cfg, radius, ingest.image)
         else:
-            from stages.nerf.render import load_model
+            from stages.nerf.render import load_model, surface_density_level
 
             trunc = cfg.depth_trunc or auto_depth_trunc(
                 (d.depth for d in iter_depth_frames(depth_dir, poses, cfg.min_opacity)),
@@ -796,8 +803,12 @@ class Mesh(Stage):
             device = pick_device(cfg.device)
             model = load_model(ctx.input_dir("nerf"), device)
             c2ws = [poses.c2w[i] for i in poses.registered]
+            level = None
+            if cfg.density_level is None:
+                step = max(1, len(c2ws) // 10)
+                level = surface_density_level(model, prior, poses.intrinsics, c2ws[::step])
             raw, info = density_mesh(
-                nerf_density_fn(model), prior, c2ws, poses.intrinsics, cfg, trunc, device
+                nerf_density_fn(model), prior, c2ws, poses.intrinsics, cfg, trunc, device, level
             )
             info["frames_used"] = len(c2ws)
         build_s = time.perf_counter() - t0

@@ -180,3 +180,48 @@ def image_metrics(
     ssim_map = kornia.metrics.ssim(p, t, window_size=11, max_val=1.0)
     ssim = float((ssim_map * m).sum() / (m.sum() * 3).clamp_min(1))
     return {"psnr": psnr, "ssim": ssim}
+
+
+def affine_invariant_metrics(
+    pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None
+) -> dict[str, float]:
+    """Against a ground truth known only up to an affine map (C3VD's grey depth panel): AbsRel
+    after the least-squares scale and shift that map the prediction onto the ground truth, and
+    Spearman's rank correlation (invariant to any monotonic map)."""
+    from scipy.stats import spearmanr
+
+    v = valid_depth_pixels(pred, gt, mask)
+    n = int(v.sum())
+    if n < 10:
+        return {"abs_rel": float("nan"), "spearman": float("nan"), "valid": n}
+    p, g = pred[v].astype(np.float64), gt[v].astype(np.float64)
+    a = np.stack([p, np.ones_like(p)], 1)
+    (scale, shift), *_ = np.linalg.lstsq(a, g, rcond=None)
+    aligned = scale * p + shift
+    return {
+        "abs_rel": float(np.mean(np.abs(aligned - g) / g)),
+        "spearman": float(spearmanr(p, g).statistic),
+        "scale": float(scale),
+        "shift": float(shift),
+        "valid": n,
+    }
+
+
+def affine_sequence_metrics(
+    preds: list[np.ndarray],
+    gts: list[np.ndarray],
+    masks: list[np.ndarray | None],
+    ids: list[int],
+) -> dict:
+    """Per-frame affine-invariant metrics and their means (frames with too few valid pixels
+    are left out of the means)."""
+    per_frame = [
+        {"index": i, **affine_invariant_metrics(p, g, m)}
+        for i, p, g, m in zip(ids, preds, gts, masks, strict=True)
+    ]
+    rows = [f for f in per_frame if f["valid"] >= 10]
+    mean = {
+        k: float(np.mean([r[k] for r in rows])) if rows else float("nan")
+        for k in ("abs_rel", "spearman")
+    }
+    return {"affine_invariant": mean, "frames": len(per_frame), "per_frame": per_frame}

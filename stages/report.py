@@ -52,12 +52,14 @@ DEPTH_METRICS = (
     ("delta1", "δ < 1.25", True),
     ("delta2", "δ < 1.25²", True),
     ("delta3", "δ < 1.25³", True),
+    ("spearman", "Spearman ρ", True),
 )
 #: Protocol keys of a depth metrics block (`sequence_scaled` and `global_scaled` are one thing).
 DEPTH_PROTOCOLS = (
     ("median_scaled", "per-frame median scaling"),
     ("sequence_scaled", "one scale for the sequence"),
     ("global_scaled", "one scale for the sequence"),
+    ("affine_invariant", "scale and shift fitted per frame (relative ground truth)"),
 )
 TISSUE_RGB = (214, 146, 138)
 NEAREST = {"interpolation": "nearest", "interpolation_stage": "rgba"}
@@ -498,10 +500,18 @@ def section_summary(data: CaseData, info: ReportInfo) -> str:
             if pos.get("aligned_to_gt")
             else ("" if metric else "monocular: up to scale"),
         )
-    card("Ground truth", gt_badge, {"pseudo": "e.g. stereo-derived"}.get(gt, ""))
+    card(
+        "Ground truth",
+        gt_badge,
+        {"pseudo": "e.g. stereo-derived", "relative": "depth up to scale and shift"}.get(gt, ""),
+    )
     dm = (data.depth_metrics or {}).get("median_scaled") or {}
+    am = (data.depth_metrics or {}).get("affine_invariant") or {}
     if isinstance(dm, dict) and dm.get("abs_rel") is not None:
         card("Depth AbsRel", fmt(dm.get("abs_rel")), "per-frame median scaling")
+    elif isinstance(am, dict) and am.get("abs_rel") is not None:
+        card("Depth AbsRel", fmt(am.get("abs_rel")), "scale and shift fitted (relative GT)")
+        card("Depth rank corr.", fmt(am.get("spearman")), "Spearman ρ vs the relative GT")
     mm = _flat_numbers(data.mesh_metrics or {})
     mm = {k: v for k, v in mm.items() if "pct" not in k and "median" not in k}
     chamfer = _first(mm, ("chamfer",))

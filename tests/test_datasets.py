@@ -380,3 +380,35 @@ def test_digest_is_the_frames_not_the_whole_folder(tmp_path: Path) -> None:
     assert open_input(seq).digest() == before  # the right images are not read
     cv2.imwrite(str(seq / "image01" / "0000000000.jpg"), np.zeros((H, W, 3), np.uint8))
     assert open_input(seq).digest() != before
+
+
+def test_c3vd_preview_is_read_in_place_with_relative_ground_truth(shared_data: Path) -> None:
+    folder = shared_data / "c3vd_v3_preview"
+    assert detect_format(folder) == "c3vd_preview"
+    source = open_input(folder)
+    assert source.frame_count() == 75 and source.gt_dir == folder
+    gt = open_ground_truth(folder)
+    assert gt.kind == "relative" and not gt.has_poses()
+    first = next(iter(source.frames()))
+    depth = gt.depth(0)
+    assert depth is not None and depth.shape == first.rgb.shape[:2]
+    # Brighter = farther: the lumen's far end (image centre) is brighter than the walls at the
+    # octagon's rim.
+    h, w = depth.shape
+    centre = depth[h // 3 : 2 * h // 3, w // 3 : 2 * w // 3]
+    assert np.percentile(centre, 90) > np.median(depth[depth > 0])
+
+
+def test_affine_invariant_metrics_ignore_scale_and_shift_only() -> None:
+    from stages.metrics import affine_invariant_metrics
+
+    rng = np.random.default_rng(0)
+    depth = rng.uniform(5.0, 50.0, (64, 64)).astype(np.float32)
+    proxy = 3.0 * depth + 20.0  # an affine proxy, like C3VD's grey panel
+    exact = affine_invariant_metrics(depth, proxy)
+    assert exact["abs_rel"] < 1e-6 and exact["spearman"] > 0.999
+    assert exact["scale"] == pytest.approx(3.0, rel=1e-4)
+    wrong = affine_invariant_metrics(1.0 / depth, proxy)  # monotonic but inverted
+    assert wrong["spearman"] < -0.999 and wrong["abs_rel"] > 0.05
+    noisy = affine_invariant_metrics(depth * rng.uniform(0.9, 1.1, depth.shape), proxy)
+    assert 0.01 < noisy["abs_rel"] < 0.1 and 0.9 < noisy["spearman"] < 1.0

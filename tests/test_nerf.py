@@ -183,6 +183,21 @@ def test_sampling_and_compositing():
     assert ((fine - t[:, 20:21]).abs() < (t[:, 21:22] - t[:, 19:20])).all()
 
 
+def test_distortion_loss_prefers_one_compact_surface():
+    from stages.nerf.losses import distortion
+
+    t = torch.linspace(0.0, 4.0, 33)[None]
+    far = torch.tensor([4.0])
+    compact = torch.zeros_like(t)
+    compact[0, 16:18] = 0.5
+    spread = torch.zeros_like(t)
+    spread[0, 8:24] = 1.0 / 16
+    two_walls = torch.zeros_like(t)
+    two_walls[0, [4, 28]] = 0.5
+    values = [float(distortion(t, w, far)) for w in (compact, spread, two_walls)]
+    assert values[0] < values[1] < values[2]
+
+
 def test_depth_metrics():
     gt = np.full((4, 5), 10.0)
     assert depth_errors(gt[gt > 0], gt[gt > 0])["abs_rel"] == 0

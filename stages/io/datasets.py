@@ -2,8 +2,9 @@
 
 Readers: an endopipe case folder ("case"), a video file ("video"), a folder of images
 ("images"), and the data sets read in place, one module each: Hamlyn ("hamlyn", rectified
-release), C3VD ("c3vd") and SimCol3D ("simcol3d"). Detection looks at the files, never at folder
-names, so a renamed copy is still recognised; `--format` overrides it.
+release), C3VD ("c3vd"), SimCol3D ("simcol3d") and C3VD v3's preview frames ("c3vd_preview").
+Detection looks at the files, never at folder names, so a renamed copy is still recognised;
+`--format` overrides it.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from types import ModuleType
 
 from pipeline.errors import InputError
 from stages.geometry import Intrinsics
-from stages.io import c3vd, hamlyn, simcol3d
+from stages.io import c3vd, c3vd_preview, hamlyn, simcol3d
 from stages.io.sources import (
     FORMATS,
     IMAGE_SUFFIXES,
@@ -26,7 +27,7 @@ from stages.io.sources import (
 
 #: Data set readers, in detection order. Each module has NAME, LAYOUT, GT_KIND,
 #: is_sequence(path), open_sequence(path, intrinsics) and ground_truth(gt_dir).
-READERS: dict[str, ModuleType] = {m.NAME: m for m in (hamlyn, c3vd, simcol3d)}
+READERS: dict[str, ModuleType] = {m.NAME: m for m in (hamlyn, c3vd, simcol3d, c3vd_preview)}
 
 DESCRIPTIONS = {
     "case": "endopipe case folder (intrinsics.json + video.mp4 or frames/, optional gt/)",

@@ -5,8 +5,10 @@ stages/io/ (hamlyn, c3vd, simcol3d) each bring their own class that reads the da
 place. Every implementation answers in endopipe's conventions: depth is float32 z-depth in mm
 (0 = invalid) at the input frame's resolution, poses are OpenCV camera-to-world 4x4 in mm, and
 both are indexed by `source_index` (frame i of the input, as in 01_ingest/frames.json).
-`kind` says how far to trust it: "exact" (rendered or measured) or "pseudo" (e.g. Hamlyn's
-stereo-derived depth); evaluation outputs must carry it as `gt_kind`.
+`kind` says how far to trust it: "exact" (rendered or measured), "pseudo" (e.g. Hamlyn's
+stereo-derived depth) or "relative" (an affine proxy of depth in arbitrary units, e.g. C3VD's
+preview panel: compared only up to scale and shift, or by rank); evaluation outputs must carry
+it as `gt_kind`.
 """
 
 from __future__ import annotations
@@ -18,14 +20,14 @@ from typing import Literal, Protocol, runtime_checkable
 import cv2
 import numpy as np
 
-GtKind = Literal["exact", "pseudo"]
+GtKind = Literal["exact", "pseudo", "relative"]
 
 
 @runtime_checkable
 class GroundTruthSource(Protocol):
     """What evaluation needs from any ground truth."""
 
-    dataset: str  # "endopipe" | "hamlyn" | "c3vd" | "simcol3d"
+    dataset: str  # "endopipe" | "hamlyn" | "c3vd" | "simcol3d" | "c3vd_preview"
     kind: GtKind
     units: str  # "mm"
 

@@ -22,7 +22,7 @@ VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpe
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 HINT = "give a video (mp4, avi, mov, mkv), a folder of images, or an endopipe case folder"
 #: Readers open_input can be told to use (`endopipe batch --format`); "auto" detects.
-FORMATS = ("auto", "case", "video", "images", "hamlyn", "c3vd", "simcol3d")
+FORMATS = ("auto", "case", "video", "images", "hamlyn", "c3vd", "simcol3d", "c3vd_preview")
 
 
 @dataclass

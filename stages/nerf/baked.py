@@ -37,12 +37,21 @@ class BakedSurface:
         c2ws: list[np.ndarray],
         intrinsics: Intrinsics,
         voxels_per_radius: int = 24,
-        density_level: float = 3.0,
+        density_level: float | None = None,
         band: float = 0.6,
         reach_radii: float = 2.5,
     ) -> BakedSurface:
-        """Iso-surface of the field's density in the prior's band, over the cameras' frustums."""
+        """Iso-surface of the field's density in the prior's band, over the cameras' frustums,
+        at `density_level` per lumen radius (None: the density at the field's rendered surface,
+        from `surface_density_level` on a tenth of the cameras)."""
         from stages.mesh import MeshConfig, density_mesh, nerf_density_fn
+        from stages.nerf.render import surface_density_level
+
+        level = None
+        if density_level is None:
+            level = surface_density_level(
+                model, prior, intrinsics, c2ws[:: max(1, len(c2ws) // 10)]
+            )
 
         cfg = MeshConfig(
             method="marching_cubes",
@@ -53,7 +62,9 @@ class BakedSurface:
         # The surface is baked up to `reach_radii` lumen radii from each camera: further out the
         # grid grows with the cube of the reach, and rays that miss take the prior's exit depth.
         depth_trunc = float(prior.typical_radius) * reach_radii
-        mesh, _ = density_mesh(nerf_density_fn(model), prior, c2ws, intrinsics, cfg, depth_trunc)
+        mesh, _ = density_mesh(
+            nerf_density_fn(model), prior, c2ws, intrinsics, cfg, depth_trunc, level=level
+        )
         return cls(np.asarray(mesh.vertices), np.asarray(mesh.faces), prior)
 
     def render_depth(self, k: Intrinsics, c2w: np.ndarray) -> dict[str, np.ndarray]:

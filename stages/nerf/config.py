@@ -229,6 +229,12 @@ class LossConfig(_Section):
     patch_fraction: float = Field(
         0.5, ge=0, le=1, description="Share of each batch drawn as patches (rest: single rays)."
     )
+    distortion_weight: float = Field(
+        0.0,
+        ge=0,
+        description="Distortion loss (Mip-NeRF 360): concentrates each ray's weight on one "
+        "surface instead of a semi-transparent ramp in front of it (0: off).",
+    )
     geo_patches: int = Field(
         8, ge=0, description="Patches per step warped into the next frame for L_geo."
     )

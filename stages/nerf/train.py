@@ -30,6 +30,7 @@ LOG_FIELDS = [
     "normal_var",
     "smooth",
     "geo",
+    "distortion",
     "psnr",
     "rays_per_s",
     "lr_grid",
@@ -272,6 +273,9 @@ class Trainer:
         if lc.geo and lc.lambda_geo > 0 and b.n_patches > 0 and lc.geo_patches > 0:
             terms["geo"] = self._geo_term(b, o, d, out["depth"])
             loss = loss + lc.lambda_geo * terms["geo"]
+        if lc.distortion_weight > 0:
+            terms["distortion"] = losses.distortion(out["t"], out["weights"], far)
+            loss = loss + lc.distortion_weight * terms["distortion"]
         extra = self.model.field.extra_loss()
         if extra is not None:
             loss = loss + extra

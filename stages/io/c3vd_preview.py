@@ -1,0 +1,95 @@
+"""C3VD v3's "aligned review preview" frames (../shared/data/c3vd_v3_preview): real colonoscope
+frames with the registered depth render as an 8-bit grey panel, read in place.
+
+```
+c3vd_v3_preview/
+  rgb/NNNN.png              colonoscope frames (source_index = position in numeric order)
+  depth_vis_gray/NNNN.png   depth panel: brighter = farther, unknown normalisation, H.264
+  occlusion/NNNN.png        (not used)
+```
+
+The grey panel is an affine proxy of depth at best (its normalisation is unknown and it went
+through a video codec), so its ground truth is `kind = "relative"`: evaluation may compare only
+up to scale and shift (or by rank), never in millimetres. No intrinsics and no poses ship.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from pipeline.errors import InputError
+from stages.geometry import Intrinsics
+from stages.io.sources import ImageListSource, load_intrinsics_file
+
+NAME = "c3vd_preview"
+LAYOUT = "rgb/NNNN.png with depth_vis_gray/NNNN.png (relative depth only)"
+GT_KIND = "relative"
+NUMBERED = re.compile(r"^(\d+)\.png$", re.IGNORECASE)
+
+
+def numbered(folder: Path) -> list[tuple[int, Path]]:
+    if not folder.is_dir():
+        return []
+    found = [(int(m.group(1)), p) for p in folder.iterdir() if (m := NUMBERED.match(p.name))]
+    return sorted(found)
+
+
+def is_sequence(path: Path) -> bool:
+    path = Path(path)
+    return bool(numbered(path / "rgb")) and (path / "depth_vis_gray").is_dir()
+
+
+class C3VDPreviewSource(ImageListSource):
+    kind = NAME
+
+
+def open_sequence(path: Path, intrinsics: Intrinsics | None = None) -> C3VDPreviewSource:
+    path = Path(path)
+    frames = numbered(path / "rgb")
+    if not frames:
+        raise InputError(f"{path} is not a C3VD preview folder ({LAYOUT})")
+    if intrinsics is None and (path / "intrinsics.json").is_file():
+        intrinsics = load_intrinsics_file(path / "intrinsics.json")
+    return C3VDPreviewSource(path, [f for _, f in frames], intrinsics, path)
+
+
+def ground_truth(path: Path) -> C3VDPreviewGroundTruth:
+    return C3VDPreviewGroundTruth(path)
+
+
+class C3VDPreviewGroundTruth:
+    """The grey depth panel per frame, as float32 grey levels (0 = invalid): relative only."""
+
+    dataset = NAME
+    kind = GT_KIND
+    units = "relative"
+
+    def __init__(self, seq: Path) -> None:
+        self.dir = Path(seq)
+        self.numbers = [n for n, _ in numbered(self.dir / "rgb")]
+        self._depth = dict(numbered(self.dir / "depth_vis_gray"))
+
+    def depth(self, source_index: int) -> np.ndarray | None:
+        if not 0 <= source_index < len(self.numbers):
+            return None
+        path = self._depth.get(self.numbers[source_index])
+        if path is None:
+            return None
+        raw = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if raw is None:
+            raise InputError(f"cannot read C3VD preview depth {path}")
+        # The panel is one column wider than the RGB panel (447 vs 446): crop to the frame.
+        rgb = cv2.imread(str(self.dir / "rgb" / f"{self.numbers[source_index]:04d}.png"))
+        if rgb is not None and raw.shape[1] > rgb.shape[1]:
+            raw = raw[:, : rgb.shape[1]]
+        return raw.astype(np.float32)  # grey 0 (nearest or no render) counts as invalid
+
+    def has_poses(self) -> bool:
+        return False
+
+    def poses(self) -> list[np.ndarray]:
+        return []
