@@ -121,9 +121,11 @@ def depth_sequence_metrics(
     gts: list[np.ndarray],
     masks: list[np.ndarray | None] | None = None,
     ids: list[int] | None = None,
+    unscaled: bool = False,
 ) -> dict:
     """Both protocols of DESIGN §6: per-frame median scaling, and one median-ratio scale for
     the whole sequence (stricter: it rewards a 3D-consistent reconstruction). Mean and per frame.
+    `unscaled` adds the depths as they are (meaningful when the poses are metric).
     """
     masks = masks if masks is not None else [None] * len(preds)
     ids = ids if ids is not None else list(range(len(preds)))
@@ -141,6 +143,7 @@ def depth_sequence_metrics(
                 "median_scaled": depth_frame_metrics(p, g, m),
                 "sequence_scaled": depth_frame_metrics(p, g, m, scale=seq_scale),
             }
+            | ({"unscaled": depth_frame_metrics(p, g, m, scale=1.0)} if unscaled else {})
         )
 
     def mean(protocol: str) -> dict[str, float]:
@@ -152,6 +155,7 @@ def depth_sequence_metrics(
     return {
         "median_scaled": mean("median_scaled"),
         "sequence_scaled": mean("sequence_scaled") | {"scale": seq_scale},
+        **({"unscaled": mean("unscaled")} if unscaled else {}),
         "frames": len(per_frame),
         "per_frame": per_frame,
     }

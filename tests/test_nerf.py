@@ -16,10 +16,10 @@ import pytest
 import torch
 
 from stages.geometry import Intrinsics, look_at
+from stages.metrics import depth_errors, depth_frame_metrics, depth_sequence_metrics
 from stages.nerf.config import NerfConfig
 from stages.nerf.data import FrameSet, holdout_split, pixel_rays
 from stages.nerf.encodings import HashGrid, VMGrid
-from stages.nerf.eval import depth_errors, frame_metrics, sequence_metrics
 from stages.nerf.field import make_field
 from stages.nerf.render import density_grid, load_model, render_image, save_model
 from stages.nerf.sampling import composite, sample_pdf, spaced
@@ -201,11 +201,11 @@ def test_distortion_loss_prefers_one_compact_surface():
 def test_depth_metrics():
     gt = np.full((4, 5), 10.0)
     assert depth_errors(gt[gt > 0], gt[gt > 0])["abs_rel"] == 0
-    m = frame_metrics(gt * 2, gt)  # a global scale is removed by median scaling
-    assert m["abs_rel"] < 1e-12 and m["a1"] == 1.0 and abs(m["scale"] - 0.5) < 1e-12
-    raw = frame_metrics(gt * 1.1, gt, scale=1.0)
+    m = depth_frame_metrics(gt * 2, gt)  # a global scale is removed by median scaling
+    assert m["abs_rel"] < 1e-12 and m["delta1"] == 1.0 and abs(m["scale"] - 0.5) < 1e-12
+    raw = depth_frame_metrics(gt * 1.1, gt, scale=1.0)
     assert abs(raw["abs_rel"] - 0.1) < 1e-9 and abs(raw["rmse"] - 1.0) < 1e-9
-    seq = sequence_metrics([gt * 2, gt * 2], [gt, gt])
+    seq = depth_sequence_metrics([gt * 2, gt * 2], [gt, gt], unscaled=True)
     assert seq["sequence_scaled"]["abs_rel"] < 1e-12 and seq["unscaled"]["abs_rel"] > 0.9
 
 
@@ -400,4 +400,4 @@ def test_synthetic_colon_accuracy(tmp_path):
     record = Pipeline(stages).run(case_dir, configs, quiet=True)
     summary = record.stages[-1].summary
     m = summary["depth"]["median_scaled"]
-    assert m["abs_rel"] <= 0.10 and m["a1"] >= 0.90, m
+    assert m["abs_rel"] <= 0.10 and m["delta1"] >= 0.90, m

@@ -17,10 +17,10 @@ import torch
 
 from pipeline.errors import EndopipeError
 from pipeline.stage import Stage, StageContext, Summary, write_json
+from stages.metrics import depth_sequence_metrics
 from stages.nerf import losses
 from stages.nerf.config import NerfConfig
 from stages.nerf.data import FrameSet, holdout_split, pixel_rays
-from stages.nerf.eval import sequence_metrics
 from stages.nerf.render import MODEL_FILE, render_image, save_model
 from stages.nerf.scene import SceneBox
 from stages.nerf.train import CHECKPOINT, PriorBounds, Trainer, auto_threads, pick_device
@@ -201,7 +201,8 @@ def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) 
     if mses:
         result["psnr"] = round(float(np.nanmean([losses.psnr(m) for m in mses])), 3)
     if preds:
-        result["depth"] = sequence_metrics(preds, gts, fovs)
+        metrics = depth_sequence_metrics(preds, gts, fovs, unscaled=True)
+        result["depth"] = {k: metrics[k] for k in ("median_scaled", "sequence_scaled", "unscaled")}
         result["depth_frames"] = len(preds)
     if previews:
         write_preview(ctx.out / "heldout.png", previews[:4], gts[:4] if gts else None)
