@@ -11,7 +11,7 @@ import numpy as np
 from pydantic import Field
 
 from pipeline.stage import Stage, StageConfig, StageContext, Summary, write_json
-from stages.io.ground_truth import open_ground_truth
+from stages.io.ground_truth import GroundTruthSource, open_ground_truth
 from stages.io.video_writer import write_mp4
 from stages.metrics import affine_sequence_metrics, depth_sequence_metrics, image_metrics
 
@@ -112,8 +112,9 @@ class Depth(Stage):
                     rgbs[i] = out["rgb"]
                 advance(info=f"{1000 * times[-1]:.0f} ms/frame")
         png_scale = write_depth_pngs(ctx.out / "depth", depths)
-        gt_depths = ground_truth_depths(ctx, ingest, list(depths))
-        metrics = evaluate(ctx, ingest, depths, gt_depths, rgbs)
+        gt = open_ground_truth(Path(ctx.case.gt_dir)) if ctx.case.gt_dir else None
+        gt_depths = ground_truth_depths(gt, ingest, list(depths))
+        metrics = evaluate(gt, ingest, depths, gt_depths, rgbs)
         write_json(ctx.out / "metrics.json", metrics)
         if cfg.preview:
             affine = metrics.get("gt_kind") == "relative"
@@ -172,9 +173,10 @@ def write_depth_pngs(folder: Path, depths: dict[int, np.ndarray]) -> float:
     return scale
 
 
-def ground_truth_depths(ctx: StageContext, ingest, indices: list[int]) -> dict[int, np.ndarray]:
+def ground_truth_depths(
+    gt: GroundTruthSource | None, ingest, indices: list[int]
+) -> dict[int, np.ndarray]:
     """GT depth per frame at the working resolution (nearest-neighbour, no blending of edges)."""
-    gt = open_ground_truth(Path(ctx.case.gt_dir)) if ctx.case.gt_dir else None
     if gt is None:
         return {}
     out = {}
@@ -189,7 +191,7 @@ def ground_truth_depths(ctx: StageContext, ingest, indices: list[int]) -> dict[i
 
 
 def evaluate(
-    ctx: StageContext,
+    gt: GroundTruthSource | None,
     ingest,
     depths: dict[int, np.ndarray],
     gt_depths: dict[int, np.ndarray],
@@ -200,7 +202,6 @@ def evaluate(
     fov = ingest.fov() > 0
     if gt_depths:
         ids = sorted(gt_depths)
-        gt = open_ground_truth(Path(ctx.case.gt_dir))
         kind = getattr(gt, "kind", "exact")
         # A relative ground truth (an affine proxy of depth) supports no metric protocol.
         sequence = affine_sequence_metrics if kind == "relative" else depth_sequence_metrics
