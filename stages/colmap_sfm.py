@@ -1,4 +1,5 @@
-"""Structure from motion with pycolmap: features, matches, incremental mapping, merging.
+"""Structure from motion with pycolmap: features, matches, incremental mapping, merging, and
+triangulation from known poses.
 
 Small functions over a scratch folder (database + CLAHE images), as in pycolmap's examples.
 Every pycolmap failure on bad input becomes one StageFailed line, never a traceback.
@@ -22,7 +23,7 @@ import pycolmap
 
 from pipeline.errors import StageFailed
 from stages.geometry import Intrinsics
-from stages.io.colmap_model import CameraModel
+from stages.io.colmap_model import CameraModel, reconstruction_points
 
 if TYPE_CHECKING:
     from stages.ingest import IngestView
@@ -122,6 +123,70 @@ def run_sfm(
     return SfmResult(largest, cam, c2w, sizes, merge, merged, timings)
 
 
+def triangulate_known(
+    ingest: IngestView,
+    scratch: Path,
+    cfg: PosesConfig,
+    camera: CameraModel,
+    c2w: dict[int, np.ndarray],
+    progress: ProgressFactory,
+    log: Callable[[str], None] = lambda _: None,
+) -> tuple[pycolmap.Reconstruction, np.ndarray, np.ndarray]:
+    """Sparse points from fixed poses and a fixed camera (poses.source=gt|file).
+
+    The same features and matches as SfM, then COLMAP's point triangulator with the poses held:
+    the centerline stage measures the lumen radius from these points, as it does from SfM's.
+    Returns the model (poses, camera, tracks), xyz (N,3) and rgb (N,3 uint8), in c2w's frame.
+    """
+    scratch.mkdir(parents=True, exist_ok=True)
+    database = scratch / "database.db"
+    names = [Path(f.file).name for f in ingest.frames]
+    frame_of = {name: f.index for name, f in zip(names, ingest.frames, strict=True)}
+    with colmap_logging(cfg.colmap_log), progress("triangulation from known poses", 3) as advance:
+        t = time.perf_counter()
+        image_dir, mask_dir = prepare_images(ingest, names, scratch, cfg)
+        extract(database, image_dir, mask_dir, names, cfg, None, camera=camera)
+        advance(info=f"{len(names)} frames")
+        match(database, cfg, len(names))
+        advance(info=f"{num_verified_pairs(database)} verified pairs")
+        with pycolmap.Database.open(database) as db:
+            cameras, images = db.read_all_cameras(), db.read_all_images()
+        rec = pycolmap.Reconstruction()
+        for cam in cameras:  # one (CameraMode.SINGLE): the known camera, with the database's id
+            rec.add_camera_with_trivial_rig(cam)
+        for db_image in images:  # the database's ids and names; unposed frames stay unregistered
+            image = pycolmap.Image(
+                name=db_image.name, camera_id=db_image.camera_id, image_id=db_image.image_id
+            )
+            pose = c2w.get(frame_of.get(db_image.name, -1))
+            if pose is None:
+                rec.add_image_with_trivial_frame(image)
+            else:
+                rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(np.linalg.inv(pose)[:3]))
+        options = mapper_options(cfg, None, ingest.folder / "frames")
+        options.ba_refine_focal_length = False  # the camera is known: only the points move
+        options.ba_refine_principal_point = False
+        options.ba_refine_extra_params = False
+        pycolmap.set_random_seed(cfg.seed)
+        with colmap_errors("triangulation"):
+            rec = pycolmap.triangulate_points(
+                rec,
+                database,
+                ingest.folder / "frames",  # colours from the RGB frames
+                scratch / "triangulated",
+                clear_points=True,
+                options=options,
+                refine_intrinsics=False,
+            )
+        xyz, rgb = reconstruction_points(rec)
+        advance(info=f"{len(xyz)} points")
+    log(
+        f"triangulated {len(xyz)} points from {len(c2w)} known poses in "
+        f"{time.perf_counter() - t:.1f} s"
+    )
+    return rec, xyz, rgb
+
+
 def prepare_images(
     ingest: IngestView, names: list[str], scratch: Path, cfg: PosesConfig
 ) -> tuple[Path, Path]:
@@ -162,12 +227,16 @@ def extract(
     names: list[str],
     cfg: PosesConfig,
     intrinsics: Intrinsics | None,
+    camera: CameraModel | None = None,
 ) -> None:
-    """SIFT on every image, one shared camera (PINHOLE, or OPENCV with `dist`, when known)."""
+    """SIFT on every image, one shared camera (PINHOLE, or OPENCV with `dist`, when known).
+
+    `camera` gives that camera as it is (a pose file's own model may carry other distortion).
+    """
     reader = pycolmap.ImageReaderOptions()
     reader.mask_path = str(mask_dir)
-    if intrinsics is not None:
-        known = CameraModel.from_intrinsics(intrinsics)
+    known = camera or (CameraModel.from_intrinsics(intrinsics) if intrinsics is not None else None)
+    if known is not None:
         reader.camera_model = known.model
         reader.camera_params = ",".join(f"{v:.17g}" for v in known.params)
     else:

@@ -1,10 +1,12 @@
 """poses: one shared camera and a camera-to-world pose per frame (COLMAP SfM, GT or a file).
 
 Outputs (DESIGN §3): cameras.json (CamerasFile), sparse/ (COLMAP text model), points.ply (sparse
-points) and transforms.json (nerfstudio, OpenGL convention). When the case has ground-truth poses,
-the reconstruction is moved by the sim3 (Umeyama on camera centres) that best maps it onto them:
-it is then in the ground truth's world frame and millimetres ("metric": true, "aligned_to_gt"),
-so depth and mesh evaluations compare directly; without ground truth it stays in COLMAP's units.
+points) and transforms.json (nerfstudio, OpenGL convention). With known poses (source=gt|file)
+the sparse points are triangulated from them, so the centerline stage has a wall to measure.
+When the case has ground-truth poses, the reconstruction is moved by the sim3 (Umeyama on camera
+centres) that best maps it onto them: it is then in the ground truth's world frame and
+millimetres ("metric": true, "aligned_to_gt"), so depth and mesh evaluations compare directly;
+without ground truth it stays in COLMAP's units.
 """
 
 from __future__ import annotations
@@ -133,6 +135,11 @@ class PosesConfig(StageConfig):
         description="When COLMAP leaves frames out (several models), continue the largest model "
         "with relaxed registration to add them.",
     )
+    triangulate_known: bool = Field(
+        True,
+        description="With source=gt|file: triangulate sparse points from the known poses (the "
+        "centerline stage measures the lumen radius from them; a file's own points are kept).",
+    )
     keep_database: bool = Field(
         False, description="Keep COLMAP's database.db in 02_poses/colmap/ (for debugging)."
     )
@@ -166,7 +173,7 @@ class Estimate:
     c2w: dict[int, np.ndarray]
     xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     rgb: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.uint8))
-    reconstruction: Any = None  # pycolmap.Reconstruction for source=colmap
+    reconstruction: Any = None  # pycolmap.Reconstruction: SfM's, or the known poses' tracks
     info: dict[str, Any] = field(default_factory=dict)
     intrinsics_kind: str = "fixed"
 
@@ -176,7 +183,7 @@ class Poses(Stage):
 
     name = "poses"
     needs = ("ingest",)
-    version = 1
+    version = 2  # 2: sparse points triangulated from known poses
     Config = PosesConfig
 
     @classmethod
@@ -207,6 +214,8 @@ class Poses(Stage):
             est = from_colmap(ingest, cfg, ctx)
 
         check_registered(len(est.c2w), n, cfg)
+        if cfg.source != "colmap" and cfg.triangulate_known and not len(est.xyz):
+            triangulate(est, ingest, cfg, ctx)
 
         aligned = False
         metric = False
@@ -328,6 +337,39 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Esti
             **{k: round(v, 2) for k, v in sfm.timings.items()},
         },
     )
+
+
+#: Fewer triangulated points than this are noise, not a wall: keep none.
+MIN_TRIANGULATED_POINTS = 10
+
+
+def triangulate(est: Estimate, ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> None:
+    """Sparse points (and tracks in sparse/) from the known poses; without them the centerline
+    stage falls back to a default radius. A failure costs the points only, never the stage."""
+    from stages.colmap_sfm import triangulate_known  # pycolmap is heavy: import only when used
+
+    scratch = ctx.out / "colmap"
+    t = time.perf_counter()
+    try:
+        rec, xyz, rgb = triangulate_known(
+            ingest, scratch, cfg, est.camera, est.c2w, ctx.progress, ctx.log
+        )
+    except (StageFailed, RuntimeError, ValueError, OSError) as e:
+        ctx.log(f"no sparse points: triangulation from the known poses failed ({e})")
+        return
+    finally:
+        if cfg.keep_database:
+            for sub in ("images", "masks", "triangulated"):
+                shutil.rmtree(scratch / sub, ignore_errors=True)
+        else:
+            shutil.rmtree(scratch, ignore_errors=True)
+    est.info["triangulation_s"] = round(time.perf_counter() - t, 2)
+    if len(xyz) < MIN_TRIANGULATED_POINTS:
+        ctx.log(f"no sparse points: triangulation from the known poses found only {len(xyz)}")
+        return
+    est.xyz, est.rgb, est.reconstruction = xyz, rgb, rec
+    est.info["mean_reprojection_px"] = float(rec.compute_mean_reprojection_error())
+    est.info["mean_track_length"] = float(rec.compute_mean_track_length())
 
 
 def from_file(ingest: IngestView, cfg: PosesConfig) -> Estimate:

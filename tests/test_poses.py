@@ -14,6 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import trimesh
 
 from pipeline.cli import main
 from pipeline.errors import StageFailed
@@ -175,7 +176,7 @@ def test_frames_left_out_join_the_model_again(colon_rerun: Path, tmp_path: Path)
 
 
 def test_source_gt_reproduces_the_ground_truth_exactly(colon: Path, tmp_path: Path) -> None:
-    code, _ = run(None, colon, tmp_path, "poses.source=gt")
+    code, _ = run(None, colon, tmp_path, "poses.source=gt", "poses.triangulate_known=false")
     assert code == 0
     view = PosesView(tmp_path / "colon" / "02_poses")
     gt = gt_poses(colon)
@@ -187,6 +188,34 @@ def test_source_gt_reproduces_the_ground_truth_exactly(colon: Path, tmp_path: Pa
     )
     s = summary(tmp_path / "colon")
     assert s["source"] == "gt" and s["metric"] and s["ate_mm"] < 1e-9
+    assert s["points"] == 0 and not (tmp_path / "colon" / "02_poses" / "points.ply").exists()
+
+
+def test_source_gt_triangulates_points_on_the_wall(tmp_path: Path) -> None:
+    """Known poses: points triangulated from them lie on the true wall, and the centerline stage
+    measures the radius from them instead of falling back to its default."""
+    from stages.io.ground_truth import GroundTruth
+    from stages.mesh_metrics import point_to_surface
+    from stages.synth import SynthConfig, generate_case
+
+    case = tmp_path / "small"
+    generate_case(case, SynthConfig(seed=0, frames=16, width=160, height=128))
+    wd = tmp_path / "wd"
+    args = ["run", str(case), "--workdir", str(wd), "--until", "centerline", "--quiet"]
+    assert main([*args, "--set", "poses.source=gt"]) == 0
+    s = summary(wd / "small")
+    view = PosesView(wd / "small" / "02_poses")
+    points = view.points()
+    assert s["points"] == len(points) > 200, s  # 345 measured
+    assert view.c2w[0].tolist() == gt_poses(case)[0].tolist()  # the poses stay as given
+    gt = GroundTruth(case / "gt")
+    true_radius = float(np.mean(gt.centerline()[1]))  # ~14 mm
+    mesh = trimesh.load(gt.mesh_path())
+    dist = point_to_surface(points, mesh.vertices, mesh.faces)
+    assert np.median(dist) < 0.08 * true_radius, np.median(dist)  # 0.84 mm (6%) measured
+    line = json.loads((wd / "small" / "03_centerline" / "manifest.json").read_text())["summary"]
+    assert line["radius_source"] == "points", line
+    assert abs(line["mean_radius"] - true_radius) < 0.1 * true_radius, line  # 4.6% measured
 
 
 def test_source_file_reads_a_colmap_model_and_a_transforms_json(
@@ -203,6 +232,10 @@ def test_source_file_reads_a_colmap_model_and_a_transforms_json(
             assert np.allclose(view.c2w[i], reference.c2w[i], atol=1e-5)
         assert view.intrinsics.fx == pytest.approx(reference.intrinsics.fx)
         assert view.intrinsics.cx == pytest.approx(reference.intrinsics.cx)
+        if path.is_dir():  # the model's own points are kept
+            assert len(view.points()) == len(reference.points())
+        else:  # transforms.json has none: triangulated from its poses
+            assert summary(wd / "colon")["points"] > 100
 
 
 def test_source_file_missing_is_one_line(colon: Path, tmp_path: Path, capsys) -> None:
