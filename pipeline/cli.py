@@ -320,6 +320,9 @@ def bench(
         bool, typer.Option(help="One small colon, three variants (< 10 min).")
     ] = False,
     set_: Annotated[list[str] | None, typer.Option("--set", help="Extra stage.key=value.")] = None,
+    case: Annotated[
+        list[str] | None, typer.Option("--case", help="Only this bench case (repeatable).")
+    ] = None,
 ) -> None:
     """The paper's Table 1 on fixed-seed synthetic cases with ablations; CSV and markdown."""
     from stages.bench import markdown_table, plan, run_bench, write_csv
@@ -327,11 +330,16 @@ def bench(
     ensure_writable(workdir)
     pipe = build_pipeline()
     load_config(pipe.stages, [], set_ or [])  # validate extra settings before hours of work
+    bench_plan = plan(quick, case)
+
+    def save(rows: list[dict]) -> None:  # after every run: a crash keeps the finished rows
+        write_csv(workdir / "bench.csv", rows)
+        (workdir / "bench.md").write_text(markdown_table(rows) + "\n")
+
     t0 = time.perf_counter()
-    rows = run_bench(pipe, workdir, plan(quick), prepare_case, console, set_ or [])
+    rows = run_bench(pipe, workdir, bench_plan, prepare_case, console, set_ or [], save)
+    save(rows)
     table = markdown_table(rows)
-    write_csv(workdir / "bench.csv", rows)
-    (workdir / "bench.md").write_text(table + "\n")
     out.print(table, markup=False, highlight=False, soft_wrap=True)
     out.print(
         f"bench finished in {time.perf_counter() - t0:.0f} s; "

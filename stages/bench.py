@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import csv
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from pydantic import BaseModel
 
 from pipeline.cache import Manifest
 from pipeline.config import load_config
+from pipeline.errors import ConfigError, EndopipeError
 from pipeline.runner import Pipeline
 
 #: name -> --set overrides. "plain" is a NeRF without the prior, the near-light model and the
@@ -35,6 +37,7 @@ VARIANTS: dict[str, list[str]] = {
 COLUMNS = (
     "case",
     "variant",
+    "error",
     "abs_rel",
     "sq_rel",
     "rmse",
@@ -67,7 +70,19 @@ class BenchPlan(BaseModel):
     sets: list[str]  # applied to every run (e.g. shorter training in --quick)
 
 
-def plan(quick: bool) -> BenchPlan:
+def plan(quick: bool, cases: list[str] | None = None) -> BenchPlan:
+    """The bench's cases and variants; `cases` keeps only the cases with those names."""
+    full = _plan(quick)
+    if cases:
+        unknown = sorted(set(cases) - {c.name for c in full.cases})
+        if unknown:
+            names = ", ".join(c.name for c in full.cases)
+            raise ConfigError(f"unknown bench case {', '.join(unknown)}; cases: {names}")
+        full.cases = [c for c in full.cases if c.name in cases]
+    return full
+
+
+def _plan(quick: bool) -> BenchPlan:
     if quick:
         return BenchPlan(
             cases=[
@@ -93,11 +108,14 @@ def run_bench(
     prepare_case,
     console,
     extra_sets: list[str] | None = None,
+    on_row: Callable[[list[dict]], None] | None = None,
 ) -> list[dict]:
-    """Run every case x variant; return one row per run (the table's rows)."""
+    """Run every case x variant; return one row per run (the table's rows). A run that fails
+    is a row with its one-line error and whatever its fresh stages measured; the bench goes on.
+    `on_row` gets the rows so far after each run (to write results as they come)."""
     from stages.synth import SynthConfig, generate_case
 
-    rows = []
+    rows: list[dict] = []
     for case in bench_plan.cases:
         src = workdir / "inputs" / case.name
         if not (src / "intrinsics.json").is_file():
@@ -120,14 +138,34 @@ def run_bench(
             case_dir = prepare_case(src / "video.mp4", workdir / "runs", case.name, None)
             console.print(f"[bold cyan]{case.name} / {variant}[/bold cyan]")
             t0 = time.perf_counter()
-            pipe.run(case_dir, configs, console=console, quiet=False)
-            rows.append(collect_row(pipe, case_dir, case.name, variant, time.perf_counter() - t0))
+            error = None
+            try:
+                pipe.run(case_dir, configs, console=console, quiet=False)
+            except EndopipeError as e:
+                error = str(e).splitlines()[0] if str(e) else type(e).__name__
+                console.print(f"[red]{case.name} / {variant} failed:[/red] {error}")
+            elapsed = time.perf_counter() - t0
+            fresh = {p.stage for p in pipe.status(case_dir, configs) if p.fresh}
+            rows.append(collect_row(pipe, case_dir, case.name, variant, elapsed, fresh, error))
+            if on_row is not None:
+                on_row(rows)
     return rows
 
 
-def collect_row(pipe: Pipeline, case_dir: Path, case: str, variant: str, elapsed: float) -> dict:
-    """Metrics from the stage manifests; wall = every stage's own time (cached ones included)."""
-    manifests = {s.name: Manifest.load(case_dir / pipe.folder_name(s.name)) for s in pipe.stages}
+def collect_row(
+    pipe: Pipeline,
+    case_dir: Path,
+    case: str,
+    variant: str,
+    elapsed: float,
+    fresh: set[str] | None = None,
+    error: str | None = None,
+) -> dict:
+    """Metrics from the stage manifests (only stages in `fresh`, when given: after a failure
+    a later stage's folder still holds the previous variant's results); wall = every stage's
+    own time (cached ones included)."""
+    names = [s.name for s in pipe.stages if fresh is None or s.name in fresh]
+    manifests = {n: Manifest.load(case_dir / pipe.folder_name(n)) for n in names}
     summary = {k: (m.summary if m else {}) for k, m in manifests.items()}
     depth = summary.get("depth", {})
     med = depth.get("median_scaled") or {}
@@ -136,6 +174,7 @@ def collect_row(pipe: Pipeline, case_dir: Path, case: str, variant: str, elapsed
     return {
         "case": case,
         "variant": variant,
+        "error": error,
         **{k: med.get(k) for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "delta1")},
         "chamfer": mesh.get("chamfer"),
         "chamfer_pct_radius": mesh.get("chamfer_pct_radius"),
@@ -164,13 +203,17 @@ def markdown_table(rows: list[dict]) -> str:
     )
     lines = [head, "|" + "---|" * 16]
     for r in rows:
-        cells = [r["case"], r["variant"]]
+        cells = [r["case"], r["variant"] + (" (failed)" if r.get("error") else "")]
         cells += [_fmt(r[k], 4) for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "delta1")]
         cells += [_fmt(r["chamfer"], 3), _fmt(r["chamfer_pct_radius"], 2)]
         cells += [_fmt(r["psnr"], 2), _fmt(r["ssim"], 3), _fmt(r["registered"], 2)]
         cells += [_fmt(r["ate_pct"], 2), _fmt(r["depth_ms"], 0), _fmt(r["wall_s"], 0)]
         cells += [_fmt(r["peak_mb"], 0)]
         lines.append("| " + " | ".join(cells) + " |")
+    failed = [r for r in rows if r.get("error")]
+    if failed:
+        lines.append("")
+        lines += [f"- {r['case']} / {r['variant']} failed: {r['error']}" for r in failed]
     return "\n".join(lines)
 
 

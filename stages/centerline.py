@@ -647,6 +647,46 @@ def fit_ellipsoid(
     return mu + scale * c, scale * a, rot
 
 
+def moment_ellipsoid(
+    points: np.ndarray, outlier_mad: float = 3.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ellipsoid from the second moments of wall points: for points spread over an ellipsoid's
+    surface, each semi-axis is sqrt(3 x variance) along it. Cruder than `fit_ellipsoid` but it
+    cannot run away."""
+    p = np.asarray(points, np.float64)
+    med = np.median(p, axis=0)
+    p = p[robust_inliers(np.linalg.norm(p - med, axis=1), outlier_mad)]
+    centre = p.mean(0)
+    evals, evecs = np.linalg.eigh(np.cov((p - centre).T))
+    order = np.argsort(evals)[::-1]
+    rot = evecs[:, order]
+    if np.linalg.det(rot) < 0:
+        rot[:, 2] *= -1
+    return centre, np.sqrt(3.0 * np.maximum(evals[order], 1e-12)), rot
+
+
+def implausible_ellipsoid(
+    centre: np.ndarray,
+    axes: np.ndarray,
+    rot: np.ndarray,
+    cameras: np.ndarray,
+    points: np.ndarray,
+    max_axis_ratio: float = 2.0,
+    min_inside: float = 0.9,
+) -> str | None:
+    """Why a fitted cavity ellipsoid cannot be right, or None: a semi-axis longer than
+    `max_axis_ratio` x the points' extent, or cameras outside it (they are in the cavity)."""
+    d = np.linalg.norm(points - np.median(points, axis=0), axis=1)
+    extent = float(np.percentile(d, 95)) if len(d) else 0.0
+    if extent > 0 and float(np.max(axes)) > max_axis_ratio * extent:
+        return f"semi-axis {float(np.max(axes)):.3g} vs point extent {extent:.3g}"
+    if len(cameras):
+        inside = float(EllipsoidPrior(centre, axes, rot).in_core(cameras, 1.0).numpy().mean())
+        if inside < min_inside:
+            return f"only {100 * inside:.0f}% of the cameras inside"
+    return None
+
+
 def fit_cavity(
     centres: np.ndarray,
     view_dirs: np.ndarray,
@@ -664,6 +704,16 @@ def fit_cavity(
     if len(points) >= max(cfg.min_points, 9):
         centre, axes, rot = fit_ellipsoid(points, centres, cfg.outlier_mad)
         source, note, used = "points", f"ellipsoid fit to {len(points)} points", len(points)
+        problem = implausible_ellipsoid(centre, axes, rot, centres, points)
+        if problem:
+            # Noisy or one-sided points (e.g. poorly registered frames) can drive the fit to a
+            # huge or misplaced ellipsoid: fall back to the points' second moments.
+            centre, axes, rot = moment_ellipsoid(points, cfg.outlier_mad)
+            # The cameras are in the cavity: grow the axes (at most 2x) until 90% of them are.
+            k = np.linalg.norm(((centres - centre) @ rot) / axes, axis=1)
+            axes = axes * float(np.clip(np.percentile(k, 90) * 1.05, 1.0, 2.0))
+            note = f"moment ellipsoid of {len(points)} points (the fit was rejected: {problem})"
+            notes.append(f"ellipsoid fit rejected: {problem}")
     else:
         r = default_radius(centres, metric, cfg)
         centre = centres.mean(0) if len(centres) else np.zeros(3)
@@ -806,7 +856,7 @@ class Centerline(Stage):
 
     name = "centerline"
     needs = ("poses",)
-    version = 1
+    version = 2
     Config = CenterlineConfig
 
     @classmethod

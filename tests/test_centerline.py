@@ -246,3 +246,20 @@ def test_synth_colon_60_frames_320x256_meets_the_bounds(tmp_path: Path) -> None:
     print(f"\nsynthetic colon (320x256): {scores}")
     assert scores["centerline_mean_dist_pct_of_radius"] <= BOUND_PCT
     assert scores["radius_error_pct"] <= BOUND_PCT
+
+
+def test_runaway_cavity_fit_is_rejected_for_the_moment_ellipsoid() -> None:
+    from stages.centerline import implausible_ellipsoid, moment_ellipsoid
+
+    rng = np.random.default_rng(0)
+    u = rng.normal(size=(4000, 3))
+    axes_true = np.array([40.0, 25.0, 20.0])
+    pts = u / np.linalg.norm(u, axis=1, keepdims=True) * axes_true + np.array([5.0, -3.0, 2.0])
+    centre, axes, rot = moment_ellipsoid(pts)
+    assert np.allclose(np.sort(axes)[::-1], axes_true, rtol=0.06)
+    assert np.linalg.norm(centre - [5.0, -3.0, 2.0]) < 1.0
+    cams = centre + rng.normal(scale=3.0, size=(30, 3))
+    assert implausible_ellipsoid(centre, axes, rot, cams, pts) is None
+    assert "semi-axis" in implausible_ellipsoid(centre, axes * 1e4, rot, cams, pts)
+    far_cams = cams + np.array([200.0, 0.0, 0.0])
+    assert "cameras inside" in implausible_ellipsoid(centre, axes, rot, far_cams, pts)
