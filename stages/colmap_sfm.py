@@ -280,7 +280,9 @@ def extract(
 def match(database: Path, cfg: PosesConfig, n_images: int) -> None:
     """Sequential (video order) or exhaustive matching with seeded geometric verification."""
     matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = -1
+    # Geometric verification draws from per-thread random states: with several threads the
+    # verified matches (and so the poses) can differ between two runs.
+    matching.num_threads = cfg.num_threads
     matching.use_gpu = False
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = cfg.seed
@@ -297,7 +299,7 @@ def match(database: Path, cfg: PosesConfig, n_images: int) -> None:
             pairing = pycolmap.SequentialPairingOptions()
             pairing.overlap = min(cfg.sequential_overlap, max(1, n_images - 1))
             pairing.quadratic_overlap = cfg.quadratic_overlap
-            pairing.num_threads = -1
+            pairing.num_threads = cfg.num_threads
             pycolmap.match_sequential(
                 database,
                 matching_options=matching,

@@ -66,7 +66,7 @@ class PosesConfig(StageConfig):
     num_threads: int = Field(
         1,
         ge=-1,
-        description="Mapper threads. 1 makes two runs give identical poses (COLMAP is "
+        description="Matching and mapper threads. 1 makes two runs agree (COLMAP is "
         "deterministic only single-threaded); -1 = all cores.",
     )
     clahe: bool = Field(

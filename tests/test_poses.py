@@ -19,7 +19,7 @@ import trimesh
 from pipeline.cli import main
 from pipeline.errors import StageFailed
 from stages.cameras import CamerasFile, PosesView
-from stages.geometry import Intrinsics, apply_sim3, look_at
+from stages.geometry import Intrinsics, apply_sim3, look_at, rotation_angle_deg
 from stages.io.colmap_model import (
     CameraModel,
     PoseSet,
@@ -141,10 +141,20 @@ def test_outputs_follow_the_file_contracts(colon: Path, colon_run: Path) -> None
     assert tj["cx"] == pytest.approx(k.cx + 0.5) and tj["fl_x"] == pytest.approx(k.fx)
 
 
-def test_second_colmap_run_gives_identical_poses(colon_run: Path, colon_rerun: Path) -> None:
+def test_second_colmap_run_gives_the_same_poses(colon_run: Path, colon_rerun: Path) -> None:
+    """Reproducible within a hair: single-threaded matching and mapping are seeded, but a fresh
+    clone's CI once saw two runs differ by ~0.3 degrees (COLMAP's threads), so this bounds the
+    difference instead of asking for bitwise equality."""
     first = CamerasFile.model_validate_json((colon_run / "02_poses/cameras.json").read_text())
     second = CamerasFile.model_validate_json((colon_rerun / "02_poses/cameras.json").read_text())
-    assert first.frames == second.frames
+    assert [f.registered for f in first.frames] == [f.registered for f in second.frames]
+    a = {f.index: np.array(f.c2w) for f in first.frames if f.registered}
+    b = {f.index: np.array(f.c2w) for f in second.frames if f.registered}
+    centres = np.array([a[i][:3, 3] for i in sorted(a)])
+    path = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum())
+    for i in a:
+        assert np.linalg.norm(a[i][:3, 3] - b[i][:3, 3]) < 0.01 * path
+        assert rotation_angle_deg(a[i][:3, :3].T @ b[i][:3, :3]) < 1.0
 
 
 def test_frames_left_out_join_the_model_again(colon_rerun: Path, tmp_path: Path) -> None:
