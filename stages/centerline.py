@@ -601,6 +601,13 @@ def _ellipsoid_from_quadric(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
     return centre, 1.0 / np.sqrt(evals), evecs
 
 
+def inlier_points(points: np.ndarray, outlier_mad: float) -> np.ndarray:
+    """Points whose distance to the points' median is not a robust outlier (stray triangulations
+    far outside a cavity)."""
+    p = np.asarray(points, np.float64)
+    return p[robust_inliers(np.linalg.norm(p - np.median(p, axis=0), axis=1), outlier_mad)]
+
+
 def fit_ellipsoid(
     points: np.ndarray, centres: np.ndarray | None = None, outlier_mad: float = 3.0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -609,10 +616,7 @@ def fit_ellipsoid(
     from scipy.optimize import least_squares
     from scipy.spatial.transform import Rotation
 
-    p = np.asarray(points, np.float64)
-    med = np.median(p, axis=0)
-    dist = np.linalg.norm(p - med, axis=1)
-    p = p[robust_inliers(dist, outlier_mad)]
+    p = inlier_points(points, outlier_mad)
     mu = p.mean(0)
     scale = float(np.sqrt(((p - mu) ** 2).sum(1).mean())) or 1.0
     x = (p - mu) / scale
@@ -653,9 +657,7 @@ def moment_ellipsoid(
     """Ellipsoid from the second moments of wall points: for points spread over an ellipsoid's
     surface, each semi-axis is sqrt(3 x variance) along it. Cruder than `fit_ellipsoid` but it
     cannot run away."""
-    p = np.asarray(points, np.float64)
-    med = np.median(p, axis=0)
-    p = p[robust_inliers(np.linalg.norm(p - med, axis=1), outlier_mad)]
+    p = inlier_points(points, outlier_mad)
     centre = p.mean(0)
     evals, evecs = np.linalg.eigh(np.cov((p - centre).T))
     order = np.argsort(evals)[::-1]

@@ -13,7 +13,12 @@ from pydantic import Field
 from pipeline.stage import Stage, StageConfig, StageContext, Summary, write_json
 from stages.io.ground_truth import GroundTruthSource, open_ground_truth
 from stages.io.video_writer import write_mp4
-from stages.metrics import affine_sequence_metrics, depth_sequence_metrics, image_metrics
+from stages.metrics import (
+    affine_fit,
+    affine_sequence_metrics,
+    depth_sequence_metrics,
+    image_metrics,
+)
 
 PNG_MAX = 65535
 
@@ -242,7 +247,7 @@ def error_map(depth: np.ndarray, gt: np.ndarray, affine: bool = False) -> np.nda
     if valid.sum() > 1:
         p, g = depth[valid].astype(np.float64), gt[valid].astype(np.float64)
         if affine:
-            (s, b), *_ = np.linalg.lstsq(np.stack([p, np.ones_like(p)], 1), g, rcond=None)
+            s, b = affine_fit(p, g)
         else:
             s, b = np.median(g) / np.median(p), 0.0
         err[valid] = np.abs(p * s + b - g) / g

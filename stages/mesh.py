@@ -805,8 +805,7 @@ class Mesh(Stage):
             c2ws = [poses.c2w[i] for i in poses.registered]
             level = None
             if cfg.density_level is None:
-                step = max(1, len(c2ws) // 10)
-                level = surface_density_level(model, prior, poses.intrinsics, c2ws[::step])
+                level = surface_density_level(model, prior, poses.intrinsics, c2ws)
             raw, info = density_mesh(
                 nerf_density_fn(model), prior, c2ws, poses.intrinsics, cfg, trunc, device, level
             )

@@ -186,6 +186,13 @@ def image_metrics(
     return {"psnr": psnr, "ssim": ssim}
 
 
+def affine_fit(pred: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
+    """Least-squares scale and shift mapping matched 1-D `pred` onto `gt`."""
+    a = np.stack([pred, np.ones_like(pred)], 1)
+    (scale, shift), *_ = np.linalg.lstsq(a, gt, rcond=None)
+    return float(scale), float(shift)
+
+
 def affine_invariant_metrics(
     pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None
 ) -> dict[str, float]:
@@ -199,8 +206,7 @@ def affine_invariant_metrics(
     if n < 10:
         return {"abs_rel": float("nan"), "spearman": float("nan"), "valid": n}
     p, g = pred[v].astype(np.float64), gt[v].astype(np.float64)
-    a = np.stack([p, np.ones_like(p)], 1)
-    (scale, shift), *_ = np.linalg.lstsq(a, g, rcond=None)
+    scale, shift = affine_fit(p, g)
     aligned = scale * p + shift
     return {
         "abs_rel": float(np.mean(np.abs(aligned - g) / g)),

@@ -298,6 +298,16 @@ def from_ground_truth(ingest: IngestView, gt_poses: dict[int, np.ndarray] | None
     )
 
 
+def clean_scratch(scratch: Path, keep_database: bool, work: tuple[str, ...]) -> None:
+    """Remove COLMAP's scratch folder, or with `keep_database` only its `work` sub-folders (the
+    database stays in 02_poses/colmap/ for debugging)."""
+    if keep_database:
+        for sub in work:
+            shutil.rmtree(scratch / sub, ignore_errors=True)
+    else:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
 def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Estimate:
     from stages.colmap_sfm import run_sfm  # pycolmap is heavy: import only when SfM runs
 
@@ -306,11 +316,7 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Esti
     try:
         sfm = run_sfm(ingest, scratch, cfg, known, ctx.progress, ctx.log)
     finally:
-        if cfg.keep_database:
-            for sub in ("images", "masks", "largest"):
-                shutil.rmtree(scratch / sub, ignore_errors=True)
-        else:
-            shutil.rmtree(scratch, ignore_errors=True)
+        clean_scratch(scratch, cfg.keep_database, ("images", "masks", "largest"))
     if sfm.reconstruction is None:
         check_registered(0, len(ingest.frames), cfg)
     rec = sfm.reconstruction
@@ -358,11 +364,7 @@ def triangulate(est: Estimate, ingest: IngestView, cfg: PosesConfig, ctx: StageC
         ctx.log(f"no sparse points: triangulation from the known poses failed ({e})")
         return
     finally:
-        if cfg.keep_database:
-            for sub in ("images", "masks", "triangulated"):
-                shutil.rmtree(scratch / sub, ignore_errors=True)
-        else:
-            shutil.rmtree(scratch, ignore_errors=True)
+        clean_scratch(scratch, cfg.keep_database, ("images", "masks", "triangulated"))
     est.info["triangulation_s"] = round(time.perf_counter() - t, 2)
     if len(xyz) < MIN_TRIANGULATED_POINTS:
         ctx.log(f"no sparse points: triangulation from the known poses found only {len(xyz)}")

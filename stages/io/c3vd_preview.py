@@ -23,6 +23,7 @@ import numpy as np
 
 from pipeline.errors import InputError
 from stages.geometry import Intrinsics
+from stages.io.c3vd import numbered
 from stages.io.sources import ImageListSource, load_intrinsics_file
 
 NAME = "c3vd_preview"
@@ -31,16 +32,9 @@ GT_KIND = "relative"
 NUMBERED = re.compile(r"^(\d+)\.png$", re.IGNORECASE)
 
 
-def numbered(folder: Path) -> list[tuple[int, Path]]:
-    if not folder.is_dir():
-        return []
-    found = [(int(m.group(1)), p) for p in folder.iterdir() if (m := NUMBERED.match(p.name))]
-    return sorted(found)
-
-
 def is_sequence(path: Path) -> bool:
     path = Path(path)
-    return bool(numbered(path / "rgb")) and (path / "depth_vis_gray").is_dir()
+    return bool(numbered(path / "rgb", NUMBERED)) and (path / "depth_vis_gray").is_dir()
 
 
 class C3VDPreviewSource(ImageListSource):
@@ -49,7 +43,7 @@ class C3VDPreviewSource(ImageListSource):
 
 def open_sequence(path: Path, intrinsics: Intrinsics | None = None) -> C3VDPreviewSource:
     path = Path(path)
-    frames = numbered(path / "rgb")
+    frames = numbered(path / "rgb", NUMBERED)
     if not frames:
         raise InputError(f"{path} is not a C3VD preview folder ({LAYOUT})")
     if intrinsics is None and (path / "intrinsics.json").is_file():
@@ -70,8 +64,13 @@ class C3VDPreviewGroundTruth:
 
     def __init__(self, seq: Path) -> None:
         self.dir = Path(seq)
-        self.numbers = [n for n, _ in numbered(self.dir / "rgb")]
-        self._depth = dict(numbered(self.dir / "depth_vis_gray"))
+        frames = numbered(self.dir / "rgb", NUMBERED)
+        self.numbers = [n for n, _ in frames]
+        self._depth = dict(numbered(self.dir / "depth_vis_gray", NUMBERED))
+        # The panel is one column wider than the RGB panel (447 vs 446): depth is cropped to the
+        # frames' width, read once (every frame of the video has the same size).
+        first = cv2.imread(str(frames[0][1])) if frames else None
+        self._width = first.shape[1] if first is not None else None
 
     def depth(self, source_index: int) -> np.ndarray | None:
         if not 0 <= source_index < len(self.numbers):
@@ -82,10 +81,8 @@ class C3VDPreviewGroundTruth:
         raw = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         if raw is None:
             raise InputError(f"cannot read C3VD preview depth {path}")
-        # The panel is one column wider than the RGB panel (447 vs 446): crop to the frame.
-        rgb = cv2.imread(str(self.dir / "rgb" / f"{self.numbers[source_index]:04d}.png"))
-        if rgb is not None and raw.shape[1] > rgb.shape[1]:
-            raw = raw[:, : rgb.shape[1]]
+        if self._width is not None and raw.shape[1] > self._width:
+            raw = raw[:, : self._width]
         return raw.astype(np.float32)  # grey 0 (nearest or no render) counts as invalid
 
     def has_poses(self) -> bool:

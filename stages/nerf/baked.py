@@ -43,15 +43,13 @@ class BakedSurface:
     ) -> BakedSurface:
         """Iso-surface of the field's density in the prior's band, over the cameras' frustums,
         at `density_level` per lumen radius (None: the density at the field's rendered surface,
-        from `surface_density_level` on a tenth of the cameras)."""
+        from `surface_density_level`)."""
         from stages.mesh import MeshConfig, density_mesh, nerf_density_fn
         from stages.nerf.render import surface_density_level
 
         level = None
         if density_level is None:
-            level = surface_density_level(
-                model, prior, intrinsics, c2ws[:: max(1, len(c2ws) // 10)]
-            )
+            level = surface_density_level(model, prior, intrinsics, c2ws)
 
         cfg = MeshConfig(
             method="marching_cubes",

@@ -176,15 +176,18 @@ def surface_density_level(
     c2ws: list[np.ndarray],
     rays: int = 4096,
     seed: int = 0,
+    cameras: int = 10,
 ) -> float | None:
     """The density (per world unit) at which an iso-surface of the field passes through the
-    volume renderer's surface: the median, over random pixel rays of the given cameras, of the
-    density at each ray's median depth (where its transmittance falls to one half). A fixed
+    volume renderer's surface: the median, over random pixel rays of about `cameras` of the
+    given cameras (evenly spread), of the density at each ray's median depth (where its
+    transmittance falls to one half). A fixed
     iso-level sits wherever the field's ramp in front of the wall crosses it (measured 4% in
     front of the rendered depth on a synthetic colon); this one follows the field. None when
     no ray becomes opaque."""
     if not c2ws:
         return None
+    c2ws = c2ws[:: max(1, len(c2ws) // cameras)]
     dev = model.log_gain.device
     gen = np.random.default_rng(seed)
     k = intrinsics
