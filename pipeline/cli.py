@@ -579,6 +579,18 @@ def batch(
         )
 
 
+def _click_errors() -> tuple[type[Exception], ...]:
+    """Usage errors: click's, and those of the click that newer typer releases vendor."""
+    kinds: list[type[Exception]] = [click.ClickException]
+    try:
+        from typer._click.exceptions import ClickException as VendoredClickException
+    except ImportError:  # typer < 0.20 uses click itself
+        pass
+    else:
+        kinds.append(VendoredClickException)
+    return tuple(kinds)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: one clear line and an exit code for every failure, never a traceback."""
     try:
@@ -592,7 +604,7 @@ def main(argv: list[str] | None = None) -> int:
     except click.exceptions.Abort:
         console.print("[bold red]aborted[/bold red]")
         return 130
-    except click.ClickException as e:
+    except _click_errors() as e:
         console.print(f"[bold red]error:[/bold red] {e.format_message()}", soft_wrap=True)
         return e.exit_code
     except KeyboardInterrupt:

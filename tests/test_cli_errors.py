@@ -102,3 +102,19 @@ def test_unknown_stage_for_until(tmp_path: Path, video: Path, capsys) -> None:
         capsys, "run", str(video), "--workdir", str(tmp_path / "wd"), "--until", "x"
     )
     assert_clean_failure(code, out, tmp_path / "wd", "unknown stage 'x'")
+
+
+@pytest.mark.parametrize(
+    ("args", "expect"),
+    [
+        (["run", "a.mp4", "extra"], "unexpected extra argument"),
+        (["run", "a.mp4", "--no-such-flag"], "no such option"),
+        (["run"], "missing argument"),
+    ],
+)
+def test_usage_errors_are_one_line_exit_2(tmp_path: Path, capsys, args, expect) -> None:
+    """A mistyped command line is the user's error, not an endopipe bug: exit 2, no "internal"."""
+    code, out = run_cli(capsys, *args)
+    assert code == 2, out
+    assert "internal error" not in out
+    assert_clean_failure(code, out, tmp_path, expect)
