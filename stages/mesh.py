@@ -645,6 +645,11 @@ def read_mesh(path: Path) -> RawMesh:
 
 
 # --- evaluation -------------------------------------------------------------------------------
+#: Bands of the distance to the nearest camera centre, in lumen radii, for metrics.json's
+#: by_camera_distance (the last band is open).
+DISTANCE_BANDS_RADII = (0.0, 1.0, 1.5, 2.0, 3.0, float("inf"))
+
+
 def evaluate_against_gt(
     mesh: RawMesh,
     poses: PosesView,
@@ -712,7 +717,12 @@ def evaluate_against_gt(
         mask=mask,
         n_samples=cfg.eval_samples,
         occlusion=cfg.eval_occlusion,
+        distance_bands=[b * radius for b in DISTANCE_BANDS_RADII] if radius else None,
     )
+    for band in m.get("by_camera_distance", []):
+        band["chamfer_pct_radius"] = (
+            100.0 * band["chamfer"] / radius if band["chamfer"] is not None else None
+        )
     out: dict[str, Any] = {"evaluated": True}
     out["chamfer"] = m["chamfer"]
     out["chamfer_pct_radius"] = 100.0 * m["chamfer"] / radius if radius else None
@@ -755,9 +765,13 @@ def gt_poses_by_index(gt: Any, ingest: Any) -> dict[int, np.ndarray] | None:
 
 # --- the stage ----------------------------------------------------------------------------------
 def _finite(v: Any) -> Any:
-    """JSON has no inf / nan: such values become null."""
+    """JSON has no inf / nan: such values become null (also inside lists and dicts)."""
     if isinstance(v, float) and not np.isfinite(v):
         return None
+    if isinstance(v, dict):
+        return {k: _finite(x) for k, x in v.items()}
+    if isinstance(v, list):
+        return [_finite(x) for x in v]
     return v
 
 

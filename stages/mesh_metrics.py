@@ -22,6 +22,8 @@ What is compared (the crop, `evaluate_mesh`):
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -264,6 +266,39 @@ def surface_metrics(d_acc: np.ndarray, d_comp: np.ndarray, threshold: float) -> 
     }
 
 
+def by_camera_distance(
+    est_points: np.ndarray,
+    d_acc: np.ndarray,
+    gt_points: np.ndarray,
+    d_comp: np.ndarray,
+    centres: np.ndarray,
+    edges: list[float],
+) -> list[dict[str, float | None]]:
+    """Accuracy and completeness of the points whose nearest camera centre lies in each band
+    [edges[k], edges[k+1]): depth error grows with distance, so one mean hides where the mesh
+    can be trusted (the surface the scope passed close to) and where it cannot."""
+    near_est = nearest_distance(est_points, centres)
+    near_gt = nearest_distance(gt_points, centres)
+    rows: list[dict[str, float | None]] = []
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        a = d_acc[(near_est >= lo) & (near_est < hi)]
+        c = d_comp[(near_gt >= lo) & (near_gt < hi)]
+        acc = float(a.mean()) if len(a) else None
+        comp = float(c.mean()) if len(c) else None
+        rows.append(
+            {
+                "from": float(lo),
+                "to": float(hi),
+                "accuracy": acc,
+                "completeness": comp,
+                "chamfer": 0.5 * (acc + comp) if acc is not None and comp is not None else None,
+                "est_share": float(len(a) / max(len(d_acc), 1)),
+                "gt_share": float(len(c) / max(len(d_comp), 1)),
+            }
+        )
+    return rows
+
+
 def chamfer(
     est_vertices: np.ndarray,
     est_faces: np.ndarray,
@@ -297,14 +332,16 @@ def evaluate_mesh(
     n_samples: int = 200_000,
     occlusion: bool = True,
     seed: int = 0,
-) -> dict[str, float]:
+    distance_bands: list[float] | None = None,
+) -> dict[str, Any]:
     """Metrics of an estimated mesh against the part of the GT mesh the cameras could see.
 
     All inputs share the GT's world frame and units (align first). `c2ws`, `K`, `width`,
     `height`, `mask`: the registered cameras; `max_depth`: the depth up to which surface counts
     as seen (the reconstruction's depth truncation). See the module docstring for the crop.
     Adds to `surface_metrics`: gt_area_seen (area of the GT surface in the crop), the share of
-    GT samples kept, and the number of points on each side.
+    GT samples kept, the number of points on each side, and with `distance_bands` (edges of
+    the distance to the nearest camera centre) the metrics per band (`by_camera_distance`).
     """
     gt_v = np.asarray(gt_vertices, np.float64)
     gt_f = np.asarray(gt_faces, np.int64).reshape(-1, 3)
@@ -330,6 +367,11 @@ def evaluate_mesh(
         gt_points=int(len(gt_pts)),
         est_points=int(len(est_pts)),
     )
+    if distance_bands:
+        centres = np.array([np.asarray(c, np.float64)[:3, 3] for c in c2ws])
+        out["by_camera_distance"] = by_camera_distance(
+            est_pts, d_acc, gt_pts, d_comp, centres, distance_bands
+        )
     return out
 
 

@@ -1389,6 +1389,49 @@ def mesh_metric_rows(metrics: dict, units: str) -> list[tuple[str, str]]:
     return rows
 
 
+def distance_band_table(bands: Any, radius: Any, units: str) -> str:
+    """metrics.json's by_camera_distance as a table: where the mesh can be trusted."""
+    if not isinstance(bands, list) or not bands:
+        return ""
+
+    def edge(v: Any) -> str:
+        if v is None:
+            return "∞"
+        return f"{v / radius:.1f}" if isinstance(radius, int | float) and radius > 0 else fmt(v)
+
+    rows = []
+    for b in bands:
+        if not isinstance(b, dict):
+            continue
+        cells = [
+            f"{edge(b.get('from'))}–{edge(b.get('to'))}",
+            fmt(b.get("chamfer"), units),
+            fmt(b.get("chamfer_pct_radius"), "%"),
+            fmt(b.get("accuracy"), units),
+            fmt(b.get("completeness"), units),
+            fmt(100.0 * b["gt_share"], "%") if isinstance(b.get("gt_share"), float) else "—",
+        ]
+        rows.append("<tr>" + "".join(f'<td class="num">{c}</td>' for c in cells) + "</tr>")
+    head = "".join(
+        f"<th>{h}</th>"
+        for h in (
+            "nearest camera (radii)",
+            "Chamfer",
+            "% of radius",
+            "accuracy",
+            "completeness",
+            "share of GT surface",
+        )
+    )
+    return (
+        '<p class="note">By distance of the surface to the nearest camera centre: depth error '
+        "grows with distance, so the surface the scope passed close to is the part to trust."
+        f'</p><table class="grid metrics"><thead><tr>{head}</tr></thead><tbody>'
+        + "".join(rows)
+        + "</tbody></table>"
+    )
+
+
 def decimate(
     vertices: np.ndarray, faces: np.ndarray, max_faces: int, colors: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -1594,6 +1637,7 @@ def section_mesh(data: CaseData, info: ReportInfo) -> str | None:
             "to the ground truth with a similarity transform (Umeyama); Chamfer distance in the "
             "ground truth's units, F-score at the stated threshold.</p>"
             + (kv_table(rows) if rows else not_available("metrics.json holds no numbers"))
+            + distance_band_table(mm.get("by_camera_distance"), mm.get("mean_radius"), gt_units)
         )
     else:
         reason = (

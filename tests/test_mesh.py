@@ -54,6 +54,26 @@ def test_identical_meshes_score_zero():
     assert m["fscore"] == 1.0
 
 
+def test_metrics_by_camera_distance_locate_the_error():
+    """A sphere estimated 0.3 too big on its far side only: the far band carries the error."""
+    a = sphere(10.0)
+    est = sphere(10.0)
+    far_side = est.vertices[:, 0] > 0
+    est.vertices[far_side] *= 1.03
+    pts_est = mm.sample_surface(est.vertices, est.faces, 20_000)
+    pts_gt = mm.sample_surface(a.vertices, a.faces, 20_000, seed=1)
+    d_acc = mm.point_to_surface(pts_est, a.vertices, a.faces)
+    d_comp = mm.point_to_surface(pts_gt, est.vertices, est.faces)
+    camera = np.array([[-8.0, 0.0, 0.0]])  # inside, near the -x wall
+    bands = mm.by_camera_distance(pts_est, d_acc, pts_gt, d_comp, camera, [0.0, 8.0, np.inf])
+    near, far = bands
+    assert near["accuracy"] < 0.02 and near["completeness"] < 0.02
+    assert far["chamfer"] == pytest.approx(0.25, abs=0.1)
+    assert near["gt_share"] + far["gt_share"] == pytest.approx(1.0)
+    empty = mm.by_camera_distance(pts_est, d_acc, pts_gt, d_comp, camera, [100.0, 200.0])[0]
+    assert empty["chamfer"] is None and empty["gt_share"] == 0.0
+
+
 def test_sampling_is_uniform_by_area():
     a = sphere(10.0)
     pts = mm.sample_surface(a.vertices, a.faces, 50_000, seed=1)
@@ -333,6 +353,8 @@ def test_stage_run_writes_mesh_and_metrics(synth_case, tmp_path):
         "aligned",
     ):
         assert key in view.metrics
+    bands = view.metrics["by_camera_distance"]  # written as JSON: the open band's end is null
+    assert bands[-1]["to"] is None and sum(b["gt_share"] for b in bands) == pytest.approx(1.0)
     loaded = view.load()
     assert len(loaded.faces) == summary.faces
     assert loaded.colours is not None  # from the ingest frames
