@@ -61,10 +61,11 @@ def test_every_stage_ran_and_wrote_its_contract(first_run: tuple[Path, float]) -
     depth = json.loads((case / "05_depth" / "metrics.json").read_text())
     # a 600-step NeRF on 16 tiny 160x128 frames. With one torch thread and single-threaded COLMAP
     # matching two runs agree to the digit: AbsRel 0.139, δ1 0.835, mesh Chamfer 39.4% of the
-    # radius with λ_smooth 0.01 (0.147, 0.807, 39.7% with 0.05) (the prior from 342 sparse points sits 41% of the radius off-centre, and the field
-    # comes out 13% short overall); runs with other poses gave AbsRel 0.14-0.16, δ1 0.78-0.84,
-    # Chamfer 9-40%. Bounded, not paper-grade (the bench measures that): the bounds catch a
-    # wrong scale, a broken prior or a missing surface.
+    # radius with λ_smooth 0.01 (0.147, 0.807, 39.7% with 0.05). The prior from 342 sparse points
+    # sits 41% of the radius off-centre, and the field comes out 13% short overall; runs with
+    # other poses gave AbsRel 0.14-0.16, δ1 0.78-0.84, Chamfer 9-40%. Bounded, not paper-grade
+    # (the bench measures that): the bounds catch a wrong scale, a broken prior or a missing
+    # surface.
     assert depth["median_scaled"]["abs_rel"] < 0.2, depth["median_scaled"]
     assert depth["median_scaled"]["delta1"] > 0.7, depth["median_scaled"]
     mesh = json.loads((case / "06_mesh" / "metrics.json").read_text())
