@@ -41,6 +41,13 @@ def numbered(folder: Path, pattern: re.Pattern[str]) -> list[tuple[int, Path]]:
     return sorted(out)
 
 
+def numbered_file(numbers: list[int], files: dict[int, Path], source_index: int) -> Path | None:
+    """The file of the frame at `source_index` (position in `numbers`), None when it has none."""
+    if not 0 <= source_index < len(numbers):
+        return None
+    return files.get(numbers[source_index])
+
+
 def is_sequence(path: Path) -> bool:
     return path.is_dir() and any(COLOR.match(p.name) for p in path.iterdir())
 
@@ -122,9 +129,7 @@ class C3VDGroundTruth:
         self._depth = dict(numbered(self.dir, DEPTH))
 
     def depth(self, source_index: int) -> np.ndarray | None:
-        if not 0 <= source_index < len(self.numbers):
-            return None
-        path = self._depth.get(self.numbers[source_index])
+        path = numbered_file(self.numbers, self._depth, source_index)
         if path is None:
             return None
         raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)

@@ -23,7 +23,7 @@ import numpy as np
 
 from pipeline.errors import InputError
 from stages.geometry import Intrinsics
-from stages.io.c3vd import numbered
+from stages.io.c3vd import numbered, numbered_file
 from stages.io.sources import ImageListSource, load_intrinsics_file
 
 NAME = "c3vd_preview"
@@ -73,9 +73,7 @@ class C3VDPreviewGroundTruth:
         self._width = first.shape[1] if first is not None else None
 
     def depth(self, source_index: int) -> np.ndarray | None:
-        if not 0 <= source_index < len(self.numbers):
-            return None
-        path = self._depth.get(self.numbers[source_index])
+        path = numbered_file(self.numbers, self._depth, source_index)
         if path is None:
             return None
         raw = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)

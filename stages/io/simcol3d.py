@@ -26,7 +26,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.errors import InputError
 from stages.geometry import Intrinsics
-from stages.io.c3vd import numbered
+from stages.io.c3vd import numbered, numbered_file
 from stages.io.sources import ImageListSource
 
 NAME = "simcol3d"
@@ -145,9 +145,7 @@ class SimCol3DGroundTruth:
         self._depth = dict(numbered(self.dir, DEPTH))
 
     def depth(self, source_index: int) -> np.ndarray | None:
-        if not 0 <= source_index < len(self.numbers):
-            return None
-        path = self._depth.get(self.numbers[source_index])
+        path = numbered_file(self.numbers, self._depth, source_index)
         if path is None:
             return None
         raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
