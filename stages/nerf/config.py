@@ -20,9 +20,14 @@ class _Section(BaseModel):
 class TensorfConfig(_Section):
     """TensoRF vector-matrix grid (the CPU default)."""
 
-    density_components: int = Field(8, ge=1, description="VM components per plane for density.")
+    density_components: int = Field(
+        16,
+        ge=1,
+        description="VM components per plane for density (8 underfits the colon's folds: mesh "
+        "7.2% of the radius off vs 6.8% at 16, two seeds; 32: no better, slower).",
+    )
     appearance_components: int = Field(
-        16, ge=1, description="VM components per plane for the albedo features."
+        32, ge=1, description="VM components per plane for the albedo features."
     )
     appearance_dim: int = Field(27, ge=1, description="Albedo feature size fed to the colour MLP.")
     res_init: int = Field(
