@@ -286,7 +286,7 @@ def tsdf_fuse(
     used = 0
     for fr in frames:
         if not ((fr.depth > 0) & (fr.depth < depth_trunc)).any():
-            continue  # nothing to fuse (open3d aborts on a frame that touches no block)
+            continue  # nothing to fuse (open3d raises on a frame that touches no block)
         h, w = fr.depth.shape
         k = intrinsics
         if (w, h) != (k.width, k.height):
@@ -294,9 +294,14 @@ def tsdf_fuse(
         K = o3c.Tensor(k.matrix())
         w2c = o3c.Tensor(np.linalg.inv(np.asarray(fr.c2w, np.float64)))
         depth = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(fr.depth, np.float32)))
-        blocks = vbg.compute_unique_block_coordinates(
-            depth, K, w2c, 1.0, float(depth_trunc), trunc_voxel_multiplier=mult
-        )
+        try:
+            blocks = vbg.compute_unique_block_coordinates(
+                depth, K, w2c, 1.0, float(depth_trunc), trunc_voxel_multiplier=mult
+            )
+        except RuntimeError as e:  # a few scattered pixels can touch no block either
+            if "No block is touched" in str(e):
+                continue
+            raise
         if colour:
             rgb = fr.rgb if fr.rgb is not None else np.full((h, w, 3), 128, np.uint8)
             img = o3d.t.geometry.Image(
@@ -312,7 +317,12 @@ def tsdf_fuse(
         used += 1
     if used == 0:
         return RawMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64)), 0
-    m = vbg.extract_triangle_mesh(weight_threshold=float(min_observations) - 0.5)
+    try:
+        m = vbg.extract_triangle_mesh(weight_threshold=float(min_observations) - 0.5)
+    except RuntimeError as e:  # open3d fails instead of returning an empty mesh
+        if "has shape {0}" in str(e):
+            return RawMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64)), used
+        raise
     verts = m.vertex.positions.numpy().astype(np.float64)
     faces = (
         m.triangle.indices.numpy().astype(np.int64)
@@ -347,7 +357,10 @@ def fuse_depth_folder(
         frames, poses.intrinsics, voxel, sdf_trunc, trunc, cfg.colour, cfg.min_observations
     )
     if used == 0:
-        raise StageFailed(f"mesh: no depth map of a registered frame in {depth_dir}/depth")
+        raise StageFailed(
+            f"mesh: no registered frame has depth to fuse in {depth_dir}/depth (missing, or "
+            "every pixel invalid, beyond depth_trunc or under min_opacity)"
+        )
     info = {"voxel_size": voxel, "sdf_trunc": sdf_trunc, "depth_trunc": trunc, "frames_used": used}
     return mesh, info
 

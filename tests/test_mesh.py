@@ -17,6 +17,7 @@ from stages import mesh_metrics as mm
 from stages.cameras import CamerasFile, PosesView
 from stages.geometry import Intrinsics
 from stages.mesh import (
+    DepthFrame,
     Mesh,
     MeshConfig,
     MeshView,
@@ -27,6 +28,7 @@ from stages.mesh import (
     evaluate_against_gt,
     fuse_depth_folder,
     marching_cubes_mesh,
+    tsdf_fuse,
 )
 from stages.prior import TubePrior
 
@@ -232,6 +234,29 @@ def test_tsdf_of_ground_truth_depth_matches_the_ground_truth_mesh(fused, synth_c
     assert m["accuracy"] < 0.05 * radius and m["completeness"] < 0.05 * radius
     assert m["fscore"] > 0.95
     assert m["gt_points"] > 0.3 * cfg.eval_samples
+
+
+def test_tsdf_survives_frames_of_a_few_scattered_pixels():
+    """A poorly trained field can leave a frame one valid pixel (seen in `endopipe bench
+    --quick`): open3d raises "No block is touched" on it, or, when it is the only frame, fails
+    to extract the empty surface. The frame is skipped, the others are fused; alone, the result
+    is an empty mesh (the stage then says so) instead of an open3d error."""
+    k = Intrinsics(width=160, height=128, fx=80.0, fy=80.0, cx=79.5, cy=63.5)
+    wall = np.full((128, 160), 18.0, np.float32)
+
+    def lonely(y: int, x: int) -> np.ndarray:
+        d = np.zeros((128, 160), np.float32)
+        d[y, x] = 18.0
+        return d
+
+    args = {"voxel": 0.22, "sdf_trunc": 0.88, "depth_trunc": 21.0, "colour": False}
+    frames = [DepthFrame(0, lonely(105, 70), np.eye(4)), DepthFrame(1, wall, np.eye(4))]
+    mesh, used = tsdf_fuse(frames, k, **args)
+    assert used == 1
+    assert not mesh.empty
+    assert np.allclose(mesh.vertices[:, 2], 18.0, atol=0.3)
+    mesh, _ = tsdf_fuse([DepthFrame(0, lonely(100, 100), np.eye(4))], k, **args)
+    assert mesh.empty
 
 
 def test_non_metric_reconstruction_is_aligned_by_sim3(fused, synth_case, tmp_path):
