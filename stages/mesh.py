@@ -187,6 +187,10 @@ class RawMesh:
     def empty(self) -> bool:
         return len(self.faces) == 0
 
+    @classmethod
+    def empty_mesh(cls) -> RawMesh:
+        return cls(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
+
 
 @dataclass
 class DepthFrame:
@@ -316,12 +320,12 @@ def tsdf_fuse(
             )
         used += 1
     if used == 0:
-        return RawMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64)), 0
+        return RawMesh.empty_mesh(), 0
     try:
         m = vbg.extract_triangle_mesh(weight_threshold=float(min_observations) - 0.5)
     except RuntimeError as e:  # open3d fails instead of returning an empty mesh
         if "has shape {0}" in str(e):
-            return RawMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64)), used
+            return RawMesh.empty_mesh(), used
         raise
     verts = m.vertex.positions.numpy().astype(np.float64)
     faces = (
@@ -429,7 +433,7 @@ def marching_cubes_mesh(grid: BandGrid, level: float) -> RawMesh:
     from skimage.measure import marching_cubes
 
     v, m = grid.values, grid.mask
-    empty = RawMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
+    empty = RawMesh.empty_mesh()
     if min(v.shape) < 2 or not m.any():
         return empty
     vals = v[m]
