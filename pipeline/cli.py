@@ -323,6 +323,10 @@ def bench(
     case: Annotated[
         list[str] | None, typer.Option("--case", help="Only this bench case (repeatable).")
     ] = None,
+    variant: Annotated[
+        list[str] | None,
+        typer.Option("--variant", help="Only this variant, e.g. full (repeatable)."),
+    ] = None,
 ) -> None:
     """The paper's Table 1 on fixed-seed synthetic cases with ablations; CSV and markdown."""
     from stages.bench import markdown_table, plan, run_bench, write_csv
@@ -330,7 +334,7 @@ def bench(
     ensure_writable(workdir)
     pipe = build_pipeline()
     load_config(pipe.stages, [], set_ or [])  # validate extra settings before hours of work
-    bench_plan = plan(quick, case)
+    bench_plan = plan(quick, case, variant)
 
     def save(rows: list[dict]) -> None:  # after every run: a crash keeps the finished rows
         write_csv(workdir / "bench.csv", rows)

@@ -19,16 +19,18 @@ from pipeline.errors import ConfigError, EndopipeError
 from pipeline.runner import Pipeline
 
 #: name -> --set overrides. "plain" is a NeRF without the prior, the near-light model and the
-#: depth regularisers: the paper's NeRF-endo baseline.
+#: depth regularisers (and without the SfM-point depth): the paper's NeRF-endo baseline.
 VARIANTS: dict[str, list[str]] = {
     "full": [],
     "no_prior": ["nerf.loss.prior=false"],
     "no_smooth": ["nerf.loss.smooth=false"],
     "no_geo": ["nerf.loss.geo=false"],
+    "no_sparse": ["nerf.loss.sparse_weight=0"],
     "plain": [
         "nerf.loss.prior=false",
         "nerf.loss.smooth=false",
         "nerf.loss.geo=false",
+        "nerf.loss.sparse_weight=0",
         "nerf.shading.enabled=false",
         "nerf.sampling.bounds=box",
     ],
@@ -70,8 +72,11 @@ class BenchPlan(BaseModel):
     sets: list[str]  # applied to every run (e.g. shorter training in --quick)
 
 
-def plan(quick: bool, cases: list[str] | None = None) -> BenchPlan:
-    """The bench's cases and variants; `cases` keeps only the cases with those names."""
+def plan(
+    quick: bool, cases: list[str] | None = None, variants: list[str] | None = None
+) -> BenchPlan:
+    """The bench's cases and variants; `cases` / `variants` keep only those names (a rerun of
+    one row after a change need not pay for the whole table)."""
     full = _plan(quick)
     if cases:
         unknown = sorted(set(cases) - {c.name for c in full.cases})
@@ -79,6 +84,12 @@ def plan(quick: bool, cases: list[str] | None = None) -> BenchPlan:
             names = ", ".join(c.name for c in full.cases)
             raise ConfigError(f"unknown bench case {', '.join(unknown)}; cases: {names}")
         full.cases = [c for c in full.cases if c.name in cases]
+    if variants:
+        unknown = sorted(set(variants) - set(full.variants))
+        if unknown:
+            names = ", ".join(full.variants)
+            raise ConfigError(f"unknown bench variant {', '.join(unknown)}; variants: {names}")
+        full.variants = [v for v in full.variants if v in variants]
     return full
 
 

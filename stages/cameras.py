@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -74,6 +75,19 @@ class CamerasFile(BaseModel):
         )
 
 
+@dataclass
+class SparseObservations:
+    """Every image observation of a sparse SfM point: which frame saw it, where (OpenCV pixel
+    convention, the top-left pixel's centre at (0, 0)), the point, its track length and mean
+    reprojection error (px). Arrays of one length N."""
+
+    frame: np.ndarray  # (N,) endopipe frame index
+    uv: np.ndarray  # (N, 2)
+    xyz: np.ndarray  # (N, 3) world, the cameras.json frame
+    track: np.ndarray  # (N,) images that see the point
+    error: np.ndarray  # (N,) px
+
+
 class PosesView:
     """Typed access to 02_poses: intrinsics, registered frames' c2w, sparse points."""
 
@@ -103,3 +117,34 @@ class PosesView:
 
         cloud = trimesh.load(path, process=False)
         return np.asarray(getattr(cloud, "vertices", np.zeros((0, 3))), dtype=np.float64)
+
+    def observations(self, index_of: dict[str, int]) -> SparseObservations | None:
+        """The sparse model's 2D-3D observations (sparse/, same world frame as cameras.json);
+        `index_of` maps an image file name to its frame index. None without a model or
+        tracks (e.g. poses from a transforms.json)."""
+        folder = self.folder / "sparse"
+        if not (folder / "points3D.txt").is_file() and not (folder / "points3D.bin").is_file():
+            return None
+        import pycolmap  # cv2 is already imported through the `stages` package
+
+        rec = pycolmap.Reconstruction(str(folder))
+        rows: list[tuple] = []
+        for img in rec.images.values():
+            idx = index_of.get(Path(img.name).name)
+            if idx is None or idx not in self.c2w:
+                continue
+            for p2 in img.points2D:
+                if p2.has_point3D():
+                    pt = rec.points3D[p2.point3D_id]
+                    u, v = p2.xy
+                    rows.append((idx, u - 0.5, v - 0.5, *pt.xyz, pt.track.length(), pt.error))
+        if not rows:
+            return None
+        a = np.array(rows, dtype=np.float64)
+        return SparseObservations(
+            frame=a[:, 0].astype(np.int64),
+            uv=a[:, 1:3],
+            xyz=a[:, 3:6],
+            track=a[:, 6],
+            error=a[:, 7],
+        )

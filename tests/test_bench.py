@@ -20,6 +20,13 @@ def test_case_filter_and_unknown_case() -> None:
         plan(False, ["nope"])
 
 
+def test_variant_filter_keeps_the_table_order_and_rejects_unknown_names() -> None:
+    assert plan(False, None, ["plain", "full"]).variants == ["full", "plain"]
+    assert plan(True, None, ["no_prior"]).variants == ["no_prior"]
+    with pytest.raises(ConfigError, match="unknown bench variant no_geo"):
+        plan(True, None, ["no_geo"])  # the quick bench has no no_geo run
+
+
 def test_a_failing_run_becomes_a_row_and_the_bench_goes_on(tmp_path: Path) -> None:
     # One frame is not a sequence: ingest's quality gate fails in seconds.
     tiny = BenchPlan(

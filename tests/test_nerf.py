@@ -198,6 +198,21 @@ def test_distortion_loss_prefers_one_compact_surface():
     assert values[0] < values[1] < values[2]
 
 
+def test_sparse_depth_loss_is_huber_and_ignores_outlier_points():
+    from stages.nerf.losses import sparse_depth
+
+    target = torch.full((3,), 10.0)
+    exact = sparse_depth(target.clone(), target)
+    near = sparse_depth(torch.tensor([10.2, 10.0, 10.0]), target)  # 2%: quadratic zone
+    far = sparse_depth(torch.tensor([12.0, 10.0, 10.0]), target)  # 20%: linear zone
+    assert float(exact) == 0.0 and 0 < float(near) < float(far)
+    assert float(far) == pytest.approx((0.2 - 0.025) / 3, rel=1e-5)
+    # A point 80% off (a track across a silhouette) gives the field no pull at all.
+    depth = torch.tensor([18.0, 10.5, 10.0], requires_grad=True)
+    sparse_depth(depth, target).backward()
+    assert depth.grad[0] == 0 and depth.grad[1] > 0
+
+
 def test_depth_metrics():
     gt = np.full((4, 5), 10.0)
     assert depth_errors(gt[gt > 0], gt[gt > 0])["abs_rel"] == 0

@@ -102,6 +102,34 @@ def test_synthetic_colon_registers_with_small_ate(colon_run: Path) -> None:
         assert key in s
 
 
+def test_sfm_observations_give_the_true_depth_of_their_pixels(colon: Path, colon_run: Path) -> None:
+    """The tracks the NeRF's sparse-depth loss uses: frame, OpenCV pixel and point must agree
+    with the ground-truth depth of that pixel (a half-pixel or frame mix-up would not)."""
+    import torch
+
+    from stages.ingest import IngestView
+    from stages.nerf.sparse_depth import sparse_depth_targets
+
+    poses, ingest = PosesView(colon_run / "02_poses"), IngestView(colon_run / "01_ingest")
+    obs = poses.observations({Path(f.file).name: f.index for f in ingest.frames})
+    assert obs is not None and len(obs.frame) > 1000
+    positions = {i: p for p, i in enumerate(poses.registered)}
+    size = (ingest.height, ingest.width)
+    sd = sparse_depth_targets(obs, positions, poses.c2w, 2.0, size, 3, 2.0, torch.device("cpu"))
+    assert sd is not None and 0.5 * len(obs.frame) < len(sd) <= len(obs.frame)
+    ratios = []
+    for pos, u, v, z in zip(sd.frame, sd.u, sd.v, sd.z, strict=True):
+        frame = poses.registered[int(pos)]
+        gt = np.load(colon / "gt" / "depth" / f"{ingest.frames[frame].source_index:06d}.npy")
+        ratios.append(2.0 * float(z) / gt[int(round(float(v))), int(round(float(u)))])
+    r = np.array(ratios)
+    assert abs(np.median(r) - 1.0) < 0.02, np.median(r)
+    assert np.median(np.abs(r - 1.0)) < 0.06, np.median(np.abs(r - 1.0))
+    # Tighter filters keep fewer rays; a track of one image is never a depth.
+    strict = sparse_depth_targets(obs, positions, poses.c2w, 2.0, size, 6, 0.5, torch.device("cpu"))
+    assert strict is None or len(strict) < len(sd)
+
+
 def test_outputs_follow_the_file_contracts(colon: Path, colon_run: Path) -> None:
     folder = colon_run / "02_poses"
     for name in (

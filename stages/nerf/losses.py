@@ -91,6 +91,18 @@ def geometric_consistency(
     return (rel * v).sum() / v.sum().clamp_min(1.0)
 
 
+def sparse_depth(
+    depth: torch.Tensor, target: torch.Tensor, delta: float = 0.05, cap: float = 0.5
+) -> torch.Tensor:
+    """Huber on the relative depth error at SfM points (quadratic under `delta`); a point off
+    by more than `cap` is left out (a track across a fold's silhouette, a bad triangulation)."""
+    rel = (depth - target) / target.clamp_min(1e-6)
+    a = rel.abs()
+    huber = torch.where(a < delta, 0.5 * a.square() / delta, a - 0.5 * delta)
+    keep = (a.detach() < cap).to(huber.dtype)
+    return (huber * keep).sum() / keep.sum().clamp_min(1.0)
+
+
 def distortion(t: torch.Tensor, weights: torch.Tensor, far: torch.Tensor) -> torch.Tensor:
     """Mip-NeRF 360's distortion loss on (B, S) sorted samples: small when each ray's weight
     sits in one compact interval. Without it the field fills the space in front of the wall

@@ -23,6 +23,7 @@ from stages.nerf.config import NerfConfig
 from stages.nerf.data import FrameSet, holdout_split, pixel_rays
 from stages.nerf.render import MODEL_FILE, render_image, save_model
 from stages.nerf.scene import SceneBox
+from stages.nerf.sparse_depth import sparse_depth_targets
 from stages.nerf.train import CHECKPOINT, PriorBounds, Trainer, auto_threads, pick_device
 
 
@@ -64,6 +65,22 @@ def fit_box(
         np.concatenate(pts),
         core_pad=f.warp_core_pad if f.warp else None,
         soft=f.warp_soft,
+    )
+
+
+def load_sparse_depth(ingest, poses, positions: dict[int, int], box, cfg: NerfConfig):
+    """SfM-point depth targets of the training frames (None when the poses have no tracks)."""
+    index_of = {Path(f.file).name: f.index for f in ingest.frames}
+    lc = cfg.loss
+    return sparse_depth_targets(
+        poses.observations(index_of),
+        positions,
+        poses.c2w,
+        box.scale,
+        (ingest.height, ingest.width),
+        lc.sparse_min_track,
+        lc.sparse_max_error,
+        pick_device(cfg.train.device),
     )
 
 
@@ -125,7 +142,13 @@ class Nerf(Stage):
         )
         train_ids, held_ids = holdout_split(ids, cfg.train.holdout_every)
         pos = {i: p for p, i in enumerate(ids)}
-        trainer = Trainer(cfg, frames, [pos[i] for i in train_ids], prior, box, ctx.out, ctx.log)
+        sparse = None
+        if cfg.loss.sparse_weight > 0:
+            sparse = load_sparse_depth(ingest, poses, {i: pos[i] for i in train_ids}, box, cfg)
+            ctx.log(f"sparse depth: {len(sparse) if sparse else 0} SfM-point rays")
+        trainer = Trainer(
+            cfg, frames, [pos[i] for i in train_ids], prior, box, ctx.out, ctx.log, sparse
+        )
         resumed = trainer.try_resume()
         start = trainer.step_i
         if resumed:

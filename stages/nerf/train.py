@@ -18,6 +18,7 @@ from stages.nerf.config import NerfConfig
 from stages.nerf.data import FrameSet, RaySampler, neighbours, pixel_rays
 from stages.nerf.model import NerfModel
 from stages.nerf.scene import SceneBox
+from stages.nerf.sparse_depth import SparseDepth
 
 CHECKPOINT = "checkpoint.pt"
 LOG_FIELDS = [
@@ -31,6 +32,7 @@ LOG_FIELDS = [
     "smooth",
     "geo",
     "distortion",
+    "sparse",
     "psnr",
     "rays_per_s",
     "lr_grid",
@@ -112,8 +114,10 @@ class Trainer:
         box: SceneBox,
         out_dir: Path,
         log: Callable[[str], None] = print,
+        sparse: SparseDepth | None = None,
     ) -> None:
         self.cfg, self.frames, self.train_pos, self.box = cfg, frames, train, box
+        self.sparse = sparse
         self.out_dir = Path(out_dir)
         self.log = log
         self.device = frames.device
@@ -273,6 +277,9 @@ class Trainer:
         if lc.geo and lc.lambda_geo > 0 and b.n_patches > 0 and lc.geo_patches > 0:
             terms["geo"] = self._geo_term(b, o, d, out["depth"])
             loss = loss + lc.lambda_geo * terms["geo"]
+        if lc.sparse_weight > 0 and self.sparse is not None:
+            terms["sparse"] = self._sparse_term()
+            loss = loss + lc.sparse_weight * terms["sparse"]
         if lc.distortion_weight > 0:
             terms["distortion"] = losses.distortion(out["t"], out["weights"], far)
             loss = loss + lc.distortion_weight * terms["distortion"]
@@ -287,6 +294,17 @@ class Trainer:
         vals = {k: float(v.detach()) for k, v in terms.items()}
         vals["loss"] = float(loss.detach())
         return vals
+
+    def _sparse_term(self) -> torch.Tensor:
+        """Rendered depth against the SfM points' depth on a random draw of tracked pixels."""
+        assert self.sparse is not None
+        frame, u, v, z = self.sparse.sample(self.cfg.loss.sparse_rays, self.gen)
+        o, d = self.frames.rays(frame, u, v)
+        near, far, _ = self.pb.bounds(o, d, self.cfg.sampling.bounds_margin)
+        out = self.model.render_rays(
+            o, d, near, far, jitter=True, gen=self.gen, colour=False, normals=False
+        )
+        return losses.sparse_depth(out["depth"], z)
 
     def _geo_term(self, b, o, d, depth) -> torch.Tensor:
         """Warp frame t's rendered depth into its neighbour and compare with the depth rendered
