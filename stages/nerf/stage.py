@@ -266,7 +266,7 @@ def plot_log(rows: list[dict], path: Path) -> None:
         return
     steps = [r["step"] for r in rows]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-    for key in ("loss", "photo", "prior", "smooth", "geo"):
+    for key in ("loss", "photo", "prior", "smooth", "geo", "sparse"):
         vals = [r.get(key) for r in rows]
         if any(v is not None for v in vals):
             axes[0].plot(steps, [np.nan if v is None else v for v in vals], label=key)
