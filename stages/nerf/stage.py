@@ -68,19 +68,26 @@ def fit_box(
     )
 
 
-def load_sparse_depth(ingest, poses, positions: dict[int, int], box, cfg: NerfConfig):
-    """SfM-point depth targets of the training frames (None when the poses have no tracks)."""
-    index_of = {Path(f.file).name: f.index for f in ingest.frames}
+def load_sparse_depth(
+    ingest, poses, positions: dict[int, int], box, cfg: NerfConfig, device: torch.device
+):
+    """SfM-point depth targets of the training frames (None when the poses have no tracks).
+    Pixels are rescaled when the poses' camera has another resolution than the frames."""
+    obs = poses.observations({Path(f.file).name: f.index for f in ingest.frames})
+    k = poses.intrinsics
+    if obs is not None and (k.width, k.height) != (ingest.width, ingest.height):
+        scale = np.array([ingest.width / k.width, ingest.height / k.height])
+        obs.uv = (obs.uv + 0.5) * scale - 0.5
     lc = cfg.loss
     return sparse_depth_targets(
-        poses.observations(index_of),
+        obs,
         positions,
         poses.c2w,
         box.scale,
         (ingest.height, ingest.width),
         lc.sparse_min_track,
         lc.sparse_max_error,
-        pick_device(cfg.train.device),
+        device,
     )
 
 
@@ -144,7 +151,8 @@ class Nerf(Stage):
         pos = {i: p for p, i in enumerate(ids)}
         sparse = None
         if cfg.loss.sparse_weight > 0:
-            sparse = load_sparse_depth(ingest, poses, {i: pos[i] for i in train_ids}, box, cfg)
+            train_pos = {i: pos[i] for i in train_ids}
+            sparse = load_sparse_depth(ingest, poses, train_pos, box, cfg, device)
             ctx.log(f"sparse depth: {len(sparse) if sparse else 0} SfM-point rays")
         trainer = Trainer(
             cfg, frames, [pos[i] for i in train_ids], prior, box, ctx.out, ctx.log, sparse
