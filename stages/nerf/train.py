@@ -299,12 +299,15 @@ class Trainer:
         """Rendered depth against the SfM points' depth on a random draw of tracked pixels."""
         assert self.sparse is not None
         frame, u, v, z = self.sparse.sample(self.cfg.loss.sparse_rays, self.gen)
-        o, d = self.frames.rays(frame, u, v)
+        return losses.sparse_depth(self._depth(*self.frames.rays(frame, u, v)), z)
+
+    def _depth(self, o: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+        """Rendered depth of extra rays (density only, jittered, with gradients)."""
         near, far, _ = self.pb.bounds(o, d, self.cfg.sampling.bounds_margin)
         out = self.model.render_rays(
             o, d, near, far, jitter=True, gen=self.gen, colour=False, normals=False
         )
-        return losses.sparse_depth(out["depth"], z)
+        return out["depth"]
 
     def _geo_term(self, b, o, d, depth) -> torch.Tensor:
         """Warp frame t's rendered depth into its neighbour and compare with the depth rendered
@@ -325,11 +328,7 @@ class Trainer:
         vi = v.detach().round().long().clamp(0, h - 1)
         valid = inside & self.frames.masks[nb, vi, ui]
         o2, d2 = pixel_rays(c2w, self.frames.K, u.detach(), v.detach())
-        near, far, _ = self.pb.bounds(o2, d2, self.cfg.sampling.bounds_margin)
-        out2 = self.model.render_rays(
-            o2, d2, near, far, jitter=True, gen=self.gen, colour=False, normals=False
-        )
-        return losses.geometric_consistency(zc, out2["depth"], valid)
+        return losses.geometric_consistency(zc, self._depth(o2, d2), valid)
 
     # --- the loop -----------------------------------------------------------------------------
     def fit(self, advance: Callable[..., None] | None = None) -> None:
