@@ -14,10 +14,12 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ValidationError
 
-from pipeline.errors import ConfigError
-from pipeline.stage import Stage, StageConfig
+import endopipe
+from endopipe.pipeline.errors import ConfigError
+from endopipe.pipeline.stage import Stage, StageConfig
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+#: Presets ship inside the installed package (endopipe/configs), so a wheel has them too.
+CONFIG_DIR = Path(endopipe.__file__).resolve().parent / "configs"
 #: Files in configs/ that are not stage presets (cluster settings for `endopipe batch`).
 NOT_PRESETS = {"cluster"}
 

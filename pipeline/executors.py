@@ -35,10 +35,11 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from pipeline.errors import ConfigError, EndopipeError
+from endopipe.pipeline.config import CONFIG_DIR
+from endopipe.pipeline.errors import ConfigError, EndopipeError
 
 EXECUTORS = ("local", "slurm", "ray")
-CLUSTER_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "cluster.yaml"
+CLUSTER_CONFIG = CONFIG_DIR / "cluster.yaml"
 THREAD_VARS = (
     "OMP_NUM_THREADS",
     "MKL_NUM_THREADS",

@@ -18,7 +18,7 @@ from filelock import FileLock, Timeout
 from pydantic import BaseModel
 from rich.console import Console
 
-from pipeline.cache import (
+from endopipe.pipeline.cache import (
     Manifest,
     freshness,
     list_files,
@@ -27,8 +27,8 @@ from pipeline.cache import (
     stale_temps,
     temp_dir_for,
 )
-from pipeline.errors import CaseLocked, EndopipeError
-from pipeline.stage import CaseInfo, Stage, StageConfig, StageContext, write_json
+from endopipe.pipeline.errors import CaseLocked, EndopipeError
+from endopipe.pipeline.stage import CaseInfo, Stage, StageConfig, StageContext, write_json
 
 TRACKED_PACKAGES = (
     "endopipe",

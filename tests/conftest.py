@@ -8,7 +8,7 @@ import av
 import numpy as np
 import pytest
 
-import stages  # noqa: F401  (cv2 before pycolmap, as in every entry point)
+import endopipe.stages  # noqa: F401  (cv2 before pycolmap, as in every entry point)
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.cli import main, process_case
-from pipeline.errors import EndopipeError
-from pipeline.executors import (
+from endopipe.cli import main, process_case
+from endopipe.pipeline.errors import EndopipeError
+from endopipe.pipeline.executors import (
     CaseRow,
     CaseTask,
     ClusterConfig,
@@ -38,7 +38,7 @@ BROKEN = "videos__broken"
 
 def make_batch_folder(root: Path) -> Path:
     """The mixed folder every executor test runs on (8 frames a case, 128x96 or less)."""
-    from stages.synth import SynthConfig, generate_case
+    from endopipe.commands.synth import SynthConfig, generate_case
 
     generate_case(root / "synth" / "colon", SynthConfig(seed=3, frames=8, width=128, height=96))
     write_hamlyn(root / "hamlyn" / "rectified01", n=8, seed=1)
@@ -147,7 +147,7 @@ def test_slurm_job_array_script_from_the_cluster_config(
     pytest.importorskip("submitit")
     import shutil
 
-    from pipeline.executors import SlurmSettings, SubmititExecutor
+    from endopipe.pipeline.executors import SlurmSettings, SubmititExecutor
 
     monkeypatch.setattr(shutil, "which", lambda name: f"/usr/bin/{name}")
     settings = SlurmSettings(partition="gpu", gpus_per_node=1, cpus_per_task=6, timeout_min=90)

@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
-from pipeline.cli import build_pipeline, prepare_case
-from pipeline.errors import ConfigError
-from stages.bench import BenchCase, BenchPlan, markdown_table, plan, run_bench
+from endopipe.cli import build_pipeline, prepare_case
+from endopipe.commands.bench import BenchCase, BenchPlan, markdown_table, plan, run_bench
+from endopipe.pipeline.errors import ConfigError
 
 
 def test_case_filter_and_unknown_case() -> None:

@@ -14,9 +14,10 @@ import torch
 import trimesh
 from rich.console import Console
 
-from pipeline.stage import CaseInfo, StageContext
-from stages.cameras import CamerasFile, PosesView
-from stages.centerline import (
+from endopipe.pipeline.stage import CaseInfo, StageContext
+from endopipe.stages.camera import Camera, backproject
+from endopipe.stages.centerline.prior import EllipsoidPrior, LumenPrior, TubePrior
+from endopipe.stages.centerline.stage import (
     Centerline,
     CenterlineConfig,
     CenterlineView,
@@ -24,9 +25,8 @@ from stages.centerline import (
     fit_cavity,
     fit_tube,
 )
-from stages.geometry import Intrinsics, backproject
-from stages.io.ground_truth import GroundTruth
-from stages.prior import EllipsoidPrior, LumenPrior, TubePrior
+from endopipe.stages.io.ground_truth import GroundTruth
+from endopipe.stages.poses.view import CamerasFile, PosesView
 
 BOUND_PCT = 15.0  # the issue's bounds: centre line within 15 % of the radius, radius within 15 %
 
@@ -155,7 +155,7 @@ def write_poses_folder(
 ) -> Path:
     """cameras.json from GT poses (metric) and points.ply from back-projected GT depth."""
     gt = GroundTruth(case / "gt")
-    intr = Intrinsics.load(case / "intrinsics.json")
+    intr = Camera.load(case / "intrinsics.json")
     poses = gt.poses()
     cams = CamerasFile.build(
         intr, dict(enumerate(poses)), len(poses), metric=True, source="ground-truth"
@@ -166,7 +166,7 @@ def write_poses_folder(
     pts = []
     for i, c2w in enumerate(poses):
         depth = gt.depth(i)
-        p = backproject(depth, intr.matrix(), c2w)[depth > 0]
+        p = backproject(intr, depth, c2w)[depth > 0]
         pts.append(p[rng.choice(len(p), min(per_frame, len(p)), replace=False)])
     pts = np.concatenate(pts)
     pts += rng.normal(0, noise, pts.shape)
@@ -177,7 +177,7 @@ def write_poses_folder(
 
 
 def synth_case(root: Path, frames: int, width: int, height: int, seed: int) -> Path:
-    from stages.synth import SynthConfig, generate_case
+    from endopipe.commands.synth import SynthConfig, generate_case
 
     case = root / f"colon_{frames}_{width}x{height}_{seed}"
     cfg = SynthConfig(seed=seed, frames=frames, width=width, height=height, specular=False)
@@ -249,7 +249,7 @@ def test_synth_colon_60_frames_320x256_meets_the_bounds(tmp_path: Path) -> None:
 
 
 def test_runaway_cavity_fit_is_rejected_for_the_moment_ellipsoid() -> None:
-    from stages.centerline import implausible_ellipsoid, moment_ellipsoid
+    from endopipe.stages.centerline.stage import implausible_ellipsoid, moment_ellipsoid
 
     rng = np.random.default_rng(0)
     u = rng.normal(size=(4000, 3))

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.cli import main
+from endopipe.cli import main
 from tests.conftest import textured_frames, write_video
 
 

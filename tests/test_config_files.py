@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from pipeline.cli import build_pipeline
-from pipeline.config import CONFIG_DIR, default_yaml, load_config, preset_names
+from endopipe.cli import build_pipeline
+from endopipe.pipeline.config import CONFIG_DIR, default_yaml, load_config, preset_names
 
 
 def test_default_yaml_matches_the_code() -> None:

@@ -12,11 +12,11 @@ import pytest
 import tifffile
 from scipy.spatial.transform import Rotation
 
-from pipeline.errors import InputError
-from stages.io import c3vd, simcol3d
-from stages.io.datasets import detect_format, find_cases
-from stages.io.ground_truth import GroundTruth, GroundTruthSource, open_ground_truth
-from stages.io.sources import ImageFolderSource, open_input
+from endopipe.pipeline.errors import InputError
+from endopipe.stages.io import c3vd, simcol3d
+from endopipe.stages.io.datasets import detect_format, find_cases
+from endopipe.stages.io.ground_truth import GroundTruth, GroundTruthSource, open_ground_truth
+from endopipe.stages.io.sources import ImageFolderSource, open_input
 from tests.conftest import textured_frames, write_video
 
 W, H, N = 128, 96, 8
@@ -286,7 +286,7 @@ def test_endopipe_case_ground_truth_through_protocol(tmp_path: Path) -> None:
 def test_ground_truth_evaluates_correctly(tmp_path: Path, reader: str) -> None:
     """An estimate equal to the truth up to a similarity (what monocular methods give) scores
     ~0 against each reader's ground truth: conventions and units line up."""
-    from stages.metrics import pose_metrics
+    from endopipe.stages.metrics.depth import pose_metrics
 
     writers = {
         "c3vd": lambda: write_c3vd(tmp_path / "seq"),
@@ -400,7 +400,7 @@ def test_c3vd_preview_is_read_in_place_with_relative_ground_truth(shared_data: P
 
 
 def test_affine_invariant_metrics_ignore_scale_and_shift_only() -> None:
-    from stages.metrics import affine_invariant_metrics
+    from endopipe.stages.metrics.depth import affine_invariant_metrics
 
     rng = np.random.default_rng(0)
     depth = rng.uniform(5.0, 50.0, (64, 64)).astype(np.float32)

@@ -8,11 +8,11 @@ import pytest
 from filelock import FileLock
 from pydantic import Field
 
-from pipeline.cache import digest_text
-from pipeline.config import load_config
-from pipeline.errors import CaseLocked, ConfigError
-from pipeline.runner import Pipeline
-from pipeline.stage import CaseInfo, Stage, StageConfig, StageContext, Summary, write_json
+from endopipe.pipeline.cache import digest_text
+from endopipe.pipeline.config import load_config
+from endopipe.pipeline.errors import CaseLocked, ConfigError
+from endopipe.pipeline.runner import Pipeline
+from endopipe.pipeline.stage import CaseInfo, Stage, StageConfig, StageContext, Summary, write_json
 
 CALLS: list[str] = []
 

@@ -15,10 +15,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline.cli import main
-from pipeline.errors import EndopipeError
-from stages.cameras import CamerasFile
-from stages.export import (
+from endopipe.cli import main
+from endopipe.commands.export import (
     ENDONERF_AXES,
     c2w_from_llff,
     endonerf_depth_scale,
@@ -29,7 +27,9 @@ from stages.export import (
     read_endonerf,
     read_nerfstudio,
 )
-from stages.io.colmap_model import OPENGL_FROM_OPENCV, read_transforms_json
+from endopipe.pipeline.errors import EndopipeError
+from endopipe.stages.io.colmap_model import OPENGL_FROM_OPENCV, read_transforms_json
+from endopipe.stages.poses.view import CamerasFile
 from tests.test_report import UNREGISTERED, WALL_Z, H, W, make_case
 
 
@@ -118,7 +118,7 @@ def test_colmap_written_from_cameras_json(case: Path) -> None:
 
 def test_colmap_model_is_read_by_pycolmap(case: Path) -> None:
     pytest.importorskip("pycolmap")
-    from stages.io.colmap_model import read_colmap_model
+    from endopipe.stages.io.colmap_model import read_colmap_model
 
     export_case(case, "colmap")
     pose_set = read_colmap_model(case / "exports" / "colmap")

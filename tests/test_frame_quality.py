@@ -8,8 +8,13 @@ import cv2
 import numpy as np
 import pytest
 
-from stages.frame_quality import QualityConfig, frame_difference, is_blurred, sharpness
-from stages.masks import FovConfig, fov_mask_for_sequence
+from endopipe.stages.ingest.frame_quality import (
+    QualityConfig,
+    frame_difference,
+    is_blurred,
+    sharpness,
+)
+from endopipe.stages.ingest.masks import FovConfig, fov_mask_for_sequence
 
 C3VD = Path("/work/shared/data/c3vd_v3_preview/rgb")
 

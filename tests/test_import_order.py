@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 SCRIPT = """
-import stages            # the one place every entry point passes through: imports cv2 first
+import endopipe.stages  # the one place every entry point passes through: imports cv2 first
 import pycolmap          # noqa: F401
 import cv2, numpy as np
 ok = cv2.imwrite(r"{out}", np.full((8, 8, 3), 127, np.uint8))
@@ -26,7 +26,7 @@ def test_png_write_survives_pycolmap_import(tmp_path: Path) -> None:
 
 def test_cli_module_imports_cv2_before_pycolmap() -> None:
     proc = subprocess.run(
-        [sys.executable, "-c", "import pipeline.cli, sys; print(list(sys.modules).index('cv2'))"],
+        [sys.executable, "-c", "import endopipe.cli, sys; print(list(sys.modules).index('cv2'))"],
         capture_output=True,
         text=True,
         timeout=120,

@@ -9,12 +9,12 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.cli import main
+from endopipe.cli import main
 
 
 @pytest.fixture(scope="module")
 def ingested(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    from stages.synth import SynthConfig, generate_case
+    from endopipe.commands.synth import SynthConfig, generate_case
 
     src = tmp_path_factory.mktemp("src") / "colon"
     generate_case(src, SynthConfig(seed=1, frames=6, width=320, height=256))

@@ -15,7 +15,7 @@ from tests.conftest import textured_frames, write_video
 def test_sigkill_mid_ingest_leaves_no_partial_folder(tmp_path: Path) -> None:
     video = write_video(tmp_path / "long.mp4", textured_frames(240, 320, 256))
     wd = tmp_path / "wd"
-    cmd = [sys.executable, "-m", "pipeline", "run", str(video), "--workdir", str(wd)]
+    cmd = [sys.executable, "-m", "endopipe", "run", str(video), "--workdir", str(wd)]
     cmd += ["--until", "ingest", "--quiet", "--set", "ingest.drop_duplicates=false"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     case = wd / "long"

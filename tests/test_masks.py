@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stages.masks import (
+from endopipe.stages.ingest.masks import (
     FovConfig,
     SpecularConfig,
     combine,

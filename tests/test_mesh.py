@@ -13,10 +13,10 @@ import torch
 import trimesh
 from rich.console import Console
 
-from stages import mesh_metrics as mm
-from stages.cameras import CamerasFile, PosesView
-from stages.geometry import Intrinsics
-from stages.mesh import (
+from endopipe.stages import mesh_metrics as mm
+from endopipe.stages.camera import Camera
+from endopipe.stages.centerline.prior import TubePrior
+from endopipe.stages.mesh.stage import (
     DepthFrame,
     Mesh,
     MeshConfig,
@@ -30,7 +30,7 @@ from stages.mesh import (
     marching_cubes_mesh,
     tsdf_fuse,
 )
-from stages.prior import TubePrior
+from endopipe.stages.poses.view import CamerasFile, PosesView
 
 
 def sphere(radius: float, centre=(0.0, 0.0, 0.0), subdivisions: int = 5) -> RawMesh:
@@ -166,7 +166,7 @@ def test_cull_unseen_drops_the_surface_behind_the_wall():
     assert (np.abs(r - 6.5) < 0.05).any() and (np.abs(r - 5.3) < 0.05).any()
     cam = np.eye(4)
     cam[:3, 3] = [0, 0, -4.0]  # on the axis, looking down the tube (+z)
-    intr = Intrinsics(width=64, height=64, fx=16.0, fy=16.0, cx=31.5, cy=31.5)
+    intr = Camera(width=64, height=64, fx=16.0, fy=16.0, cx=31.5, cy=31.5)
     seen, frac = cull_unseen(both, [cam], intr, supersample=1, dilate=1)
     used = np.unique(seen.faces)
     r = np.linalg.norm(seen.vertices[used, :2], axis=1)
@@ -177,7 +177,7 @@ def test_cull_unseen_drops_the_surface_behind_the_wall():
 # --- TSDF fusion of ground-truth depth on a synthetic case ------------------------------------
 @pytest.fixture(scope="module")
 def synth_case(tmp_path_factory) -> Path:
-    from stages.synth import SynthConfig, generate_case
+    from endopipe.commands.synth import SynthConfig, generate_case
 
     case = tmp_path_factory.mktemp("mesh") / "case"
     generate_case(case, SynthConfig(seed=0, frames=16, width=160, height=128, specular=False))
@@ -186,10 +186,10 @@ def synth_case(tmp_path_factory) -> Path:
 
 def fake_inputs(case: Path, root: Path) -> tuple[PosesView, Path, dict[int, np.ndarray], float]:
     """02_poses (GT poses, metric) and 05_depth (GT depth) folders for the case."""
-    from stages.io.ground_truth import GroundTruth
+    from endopipe.stages.io.ground_truth import GroundTruth
 
     gt = GroundTruth(case / "gt")
-    intr = Intrinsics.load(case / "intrinsics.json")
+    intr = Camera.load(case / "intrinsics.json")
     poses = dict(enumerate(gt.poses()))
     (root / "02_poses").mkdir(parents=True, exist_ok=True)
     cams = CamerasFile.build(intr, poses, len(poses), metric=True, source="gt")
@@ -241,7 +241,7 @@ def test_tsdf_survives_frames_of_a_few_scattered_pixels():
     --quick`): open3d raises "No block is touched" on it, or, when it is the only frame, fails
     to extract the empty surface. The frame is skipped, the others are fused; alone, the result
     is an empty mesh (the stage then says so) instead of an open3d error."""
-    k = Intrinsics(width=160, height=128, fx=80.0, fy=80.0, cx=79.5, cy=63.5)
+    k = Camera(width=160, height=128, fx=80.0, fy=80.0, cx=79.5, cy=63.5)
     wall = np.full((128, 160), 18.0, np.float32)
 
     def lonely(y: int, x: int) -> np.ndarray:
@@ -289,10 +289,10 @@ def test_non_metric_reconstruction_is_aligned_by_sim3(fused, synth_case, tmp_pat
 
 # --- the stage's run() on fake upstream folders ------------------------------------------------
 def test_stage_run_writes_mesh_and_metrics(synth_case, tmp_path):
-    from pipeline.stage import CaseInfo, StageContext
-    from stages.centerline import CenterlineView
-    from stages.ingest import IngestView
-    from stages.io.ground_truth import GroundTruth
+    from endopipe.pipeline.stage import CaseInfo, StageContext
+    from endopipe.stages.centerline.stage import CenterlineView
+    from endopipe.stages.ingest.stage import IngestView
+    from endopipe.stages.io.ground_truth import GroundTruth
 
     poses, depth_dir, _, radius = fake_inputs(synth_case, tmp_path)
     ingest = tmp_path / "01_ingest"

@@ -15,25 +15,25 @@ import numpy as np
 import pytest
 import torch
 
-from stages.geometry import Intrinsics, look_at
-from stages.metrics import depth_errors, depth_frame_metrics, depth_sequence_metrics
-from stages.nerf.config import NerfConfig
-from stages.nerf.data import FrameSet, holdout_split, pixel_rays
-from stages.nerf.encodings import HashGrid, VMGrid
-from stages.nerf.field import make_field
-from stages.nerf.render import density_grid, load_model, render_image, save_model
-from stages.nerf.sampling import composite, sample_pdf, spaced
-from stages.nerf.scene import SceneBox
-from stages.nerf.stage import fit_box
-from stages.nerf.train import Trainer
-from stages.prior import TubePrior
+from endopipe.stages.camera import Camera, look_at
+from endopipe.stages.centerline.prior import TubePrior
+from endopipe.stages.metrics.depth import depth_errors, depth_frame_metrics, depth_sequence_metrics
+from endopipe.stages.nerf.config import NerfConfig
+from endopipe.stages.nerf.data import FrameSet, holdout_split, pixel_rays
+from endopipe.stages.nerf.encodings import HashGrid, VMGrid
+from endopipe.stages.nerf.field import make_field
+from endopipe.stages.nerf.render import density_grid, load_model, render_image, save_model
+from endopipe.stages.nerf.sampling import composite, sample_pdf, spaced
+from endopipe.stages.nerf.scene import SceneBox
+from endopipe.stages.nerf.stage import fit_box
+from endopipe.stages.nerf.train import Trainer
 
 RADIUS = 10.0
 END_Z = 60.0
 W, H = 40, 32
 
 
-def tube_frame(k: Intrinsics, c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def tube_frame(k: Camera, c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Exact render of the tube x^2 + y^2 = R^2 closed at z = END_Z: sRGB image, z-depth."""
     u, v = np.meshgrid(np.arange(k.width, dtype=float), np.arange(k.height, dtype=float))
     dc = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], -1)
@@ -76,9 +76,9 @@ def tube_poses(n: int) -> list[np.ndarray]:
     return poses
 
 
-def intrinsics() -> Intrinsics:
+def intrinsics() -> Camera:
     f = 0.5 * W / np.tan(np.radians(45))
-    return Intrinsics(width=W, height=H, fx=f, fy=f, cx=(W - 1) / 2, cy=(H - 1) / 2)
+    return Camera(width=W, height=H, fx=f, fy=f, cx=(W - 1) / 2, cy=(H - 1) / 2)
 
 
 def tube_prior() -> TubePrior:
@@ -184,7 +184,7 @@ def test_sampling_and_compositing():
 
 
 def test_distortion_loss_prefers_one_compact_surface():
-    from stages.nerf.losses import distortion
+    from endopipe.stages.nerf.losses import distortion
 
     t = torch.linspace(0.0, 4.0, 33)[None]
     far = torch.tensor([4.0])
@@ -199,7 +199,7 @@ def test_distortion_loss_prefers_one_compact_surface():
 
 
 def test_sparse_depth_loss_is_huber_and_ignores_outlier_points():
-    from stages.nerf.losses import sparse_depth
+    from endopipe.stages.nerf.losses import sparse_depth
 
     target = torch.full((3,), 10.0)
     exact = sparse_depth(target.clone(), target)
@@ -295,8 +295,8 @@ def test_scene_box_warp_is_monotonic_and_identity_in_core():
 
 
 def test_paper_preset_trains_with_coarse_and_fine_passes(tmp_path):
-    from pipeline.config import deep_merge
-    from stages.nerf.config import PAPER_PRESET
+    from endopipe.pipeline.config import deep_merge
+    from endopipe.stages.nerf.config import PAPER_PRESET
 
     raw = deep_merge(PAPER_PRESET, {"field": {"positional": {"width": 32}}})
     cfg = NerfConfig.model_validate(raw)
@@ -333,14 +333,14 @@ def write_case(folder: Path, n: int = 10) -> None:
 
 
 def test_stage_resumes_after_a_kill(tmp_path, monkeypatch):
-    from pipeline.cli import prepare_case
-    from pipeline.config import load_config
-    from pipeline.runner import Pipeline
-    from pipeline.stage import Stage, Summary
-    from stages.ingest import Ingest
-    from stages.nerf import Nerf
-    from stages.nerf import train as train_mod
-    from stages.poses import Poses
+    from endopipe.cli import prepare_case
+    from endopipe.pipeline.config import load_config
+    from endopipe.pipeline.runner import Pipeline
+    from endopipe.pipeline.stage import Stage, Summary
+    from endopipe.stages.ingest.stage import Ingest
+    from endopipe.stages.nerf import Nerf
+    from endopipe.stages.nerf import train as train_mod
+    from endopipe.stages.poses.stage import Poses
 
     class Centerline(Stage):
         """Test stand-in: the known tube as prior.npz."""
@@ -402,11 +402,11 @@ def test_stage_resumes_after_a_kill(tmp_path, monkeypatch):
 def test_synthetic_colon_accuracy(tmp_path):
     """Default config, GT poses, a 60-frame 320x256 synthetic colon: held-out depth AbsRel <=
     0.10 and delta < 1.25 >= 0.90 with per-frame median scaling."""
-    pytest.importorskip("stages.centerline")
-    from pipeline.cli import all_stages, prepare_case
-    from pipeline.config import load_config
-    from pipeline.runner import Pipeline
-    from stages.synth import SynthConfig, generate_case
+    pytest.importorskip("endopipe.stages.centerline.stage")
+    from endopipe.cli import all_stages, prepare_case
+    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.pipeline.config import load_config
+    from endopipe.pipeline.runner import Pipeline
 
     generate_case(tmp_path / "colon", SynthConfig(frames=60, width=320, height=256))
     stages = [s for s in all_stages() if s.name in ("ingest", "poses", "centerline", "nerf")]

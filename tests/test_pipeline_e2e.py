@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.cli import build_pipeline, main
+from endopipe.cli import build_pipeline, main
 
 #: A tiny case: a short NeRF keeps the whole pipeline at about 2.5 minutes on two CPU cores.
 #: One torch thread: the result then does not depend on the machine's load (thread count changes
@@ -27,7 +27,7 @@ def statuses(case: Path) -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def synth_case(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from stages.synth import SynthConfig, generate_case
+    from endopipe.commands.synth import SynthConfig, generate_case
 
     out = tmp_path_factory.mktemp("synth") / "colon"
     generate_case(out, SynthConfig(seed=3, frames=16, width=160, height=128))

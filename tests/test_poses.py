@@ -16,11 +16,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline.cli import main
-from pipeline.errors import StageFailed
-from stages.cameras import CamerasFile, PosesView
-from stages.geometry import Intrinsics, apply_sim3, look_at, rotation_angle_deg
-from stages.io.colmap_model import (
+from endopipe.cli import main
+from endopipe.pipeline.errors import StageFailed
+from endopipe.stages.camera import Camera, apply_sim3, look_at, rotation_angle_deg
+from endopipe.stages.io.colmap_model import (
     CameraModel,
     PoseSet,
     read_colmap_model,
@@ -28,8 +27,14 @@ from stages.io.colmap_model import (
     write_text_model,
     write_transforms_json,
 )
-from stages.metrics import ate_rmse, path_length, pose_metrics, relative_rotation_error_deg
-from stages.poses import PosesConfig, match_frames, ranges
+from endopipe.stages.metrics.depth import (
+    ate_rmse,
+    path_length,
+    pose_metrics,
+    relative_rotation_error_deg,
+)
+from endopipe.stages.poses.stage import PosesConfig, match_frames, ranges
+from endopipe.stages.poses.view import CamerasFile, PosesView
 
 # ---------------------------------------------------------------- helpers and fixtures
 
@@ -65,7 +70,7 @@ def assert_one_line_failure(code: int, output: str, expect: str) -> None:
 
 @pytest.fixture(scope="module")
 def colon(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from stages.synth import SynthConfig, generate_case
+    from endopipe.commands.synth import SynthConfig, generate_case
 
     out = tmp_path_factory.mktemp("synth") / "colon"
     generate_case(out, SynthConfig(seed=0, frames=20, width=320, height=256))
@@ -107,8 +112,8 @@ def test_sfm_observations_give_the_true_depth_of_their_pixels(colon: Path, colon
     with the ground-truth depth of that pixel (a half-pixel or frame mix-up would not)."""
     import torch
 
-    from stages.ingest import IngestView
-    from stages.nerf.sparse_depth import sparse_depth_targets
+    from endopipe.stages.ingest.stage import IngestView
+    from endopipe.stages.nerf.sparse_depth import sparse_depth_targets
 
     poses, ingest = PosesView(colon_run / "02_poses"), IngestView(colon_run / "01_ingest")
     obs = poses.observations({Path(f.file).name: f.index for f in ingest.frames})
@@ -146,7 +151,7 @@ def test_outputs_follow_the_file_contracts(colon: Path, colon_run: Path) -> None
         assert (folder / name).is_file(), name
     assert not (folder / "colmap").exists(), "the scratch database is removed"
     view = PosesView(folder)
-    k = Intrinsics.load(colon / "intrinsics.json")
+    k = Camera.load(colon / "intrinsics.json")
     assert (view.intrinsics.fx, view.intrinsics.cx, view.intrinsics.cy) == (k.fx, k.cx, k.cy)
     assert view.metric and view.file.units == "mm"
     assert len(view.file.frames) == 20
@@ -192,8 +197,8 @@ def test_frames_left_out_join_the_model_again(colon_rerun: Path, tmp_path: Path)
     """The merge step: continuing a model with relaxed registration adds the missing frames."""
     import pycolmap
 
-    from stages.colmap_sfm import continue_mapping
-    from stages.ingest import IngestView
+    from endopipe.stages.ingest.stage import IngestView
+    from endopipe.stages.poses.colmap_sfm import continue_mapping
 
     folder = colon_rerun / "02_poses"
     shutil.copy(folder / "colmap" / "database.db", tmp_path / "database.db")
@@ -224,7 +229,7 @@ def test_source_gt_reproduces_the_ground_truth_exactly(colon: Path, tmp_path: Pa
     assert view.registered == list(range(20))
     for i in view.registered:
         assert np.array_equal(view.c2w[i], gt[i])
-    assert view.intrinsics == Intrinsics.load(colon / "intrinsics.json").model_copy(
+    assert view.intrinsics == Camera.load(colon / "intrinsics.json").model_copy(
         update={"dist": None}
     )
     s = summary(tmp_path / "colon")
@@ -235,9 +240,9 @@ def test_source_gt_reproduces_the_ground_truth_exactly(colon: Path, tmp_path: Pa
 def test_source_gt_triangulates_points_on_the_wall(tmp_path: Path) -> None:
     """Known poses: points triangulated from them lie on the true wall, and the centerline stage
     measures the radius from them instead of falling back to its default."""
-    from stages.io.ground_truth import GroundTruth
-    from stages.mesh_metrics import point_to_surface
-    from stages.synth import SynthConfig, generate_case
+    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.stages.io.ground_truth import GroundTruth
+    from endopipe.stages.surface.evaluate import point_to_surface
 
     case = tmp_path / "small"
     generate_case(case, SynthConfig(seed=0, frames=16, width=160, height=128))
@@ -335,7 +340,7 @@ def test_metrics_are_zero_after_a_similarity_and_see_noise() -> None:
 
 
 def test_colmap_text_model_and_transforms_json_round_trip(tmp_path: Path) -> None:
-    k = Intrinsics(width=320, height=256, fx=150.0, fy=151.0, cx=159.5, cy=127.5)
+    k = Camera(width=320, height=256, fx=150.0, fy=151.0, cx=159.5, cy=127.5)
     poses = {
         f"{i:06d}.png": look_at(
             np.array([i, 0.5 * i, 0.0]), np.array([i, 0.0, 10.0]), np.array([0.0, -1.0, 0.0])
@@ -384,7 +389,7 @@ def test_file_images_are_matched_to_frames_by_number(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_synthetic_colon_60_frames(tmp_path: Path) -> None:
-    from stages.synth import SynthConfig, generate_case
+    from endopipe.commands.synth import SynthConfig, generate_case
 
     generate_case(tmp_path / "colon60", SynthConfig(seed=0, frames=60, width=320, height=256))
     code, _ = run(None, tmp_path / "colon60", tmp_path / "wd")

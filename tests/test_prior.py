@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from stages.geometry import look_at
-from stages.prior import EllipsoidPrior, LumenPrior, TubePrior
+from endopipe.stages.camera import look_at
+from endopipe.stages.centerline.prior import EllipsoidPrior, LumenPrior, TubePrior
 
 RHO, R = 60.0, 15.0  # circular-arc centre line of radius RHO in the z = 0 plane, tube radius R
 ARC = np.pi / 1.5

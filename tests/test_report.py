@@ -21,11 +21,11 @@ import pytest
 import trimesh
 from rich.console import Console
 
-from pipeline.cache import Manifest, list_files
-from pipeline.stage import CaseInfo, StageContext, write_json
-from stages.cameras import CamerasFile
-from stages.geometry import Intrinsics
-from stages.report import (
+from endopipe.pipeline.cache import Manifest, list_files
+from endopipe.pipeline.stage import CaseInfo, StageContext, write_json
+from endopipe.stages.camera import Camera
+from endopipe.stages.poses.view import CamerasFile
+from endopipe.stages.report.stage import (
     Report,
     ReportConfig,
     build_report,
@@ -122,7 +122,7 @@ def camera_poses(n: int = N_FRAMES) -> list[np.ndarray]:
     return poses
 
 
-def wall_depth(k: Intrinsics, c2w: np.ndarray, wall_z: float = WALL_Z) -> np.ndarray:
+def wall_depth(k: Camera, c2w: np.ndarray, wall_z: float = WALL_Z) -> np.ndarray:
     """z-depth of the plane z = wall_z seen by the camera c2w (float32, H x W)."""
     u, v = np.meshgrid(np.arange(k.width), np.arange(k.height))
     rays = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u, float)], -1)
@@ -162,7 +162,7 @@ def make_case(
     rng = np.random.default_rng(0)
     case = root / "case"
     case.mkdir(parents=True)
-    k = Intrinsics(width=W, height=H, fx=50.0, fy=52.0, cx=31.0, cy=24.5)
+    k = Camera(width=W, height=H, fx=50.0, fy=52.0, cx=31.0, cy=24.5)
     poses = camera_poses()
     gt_dir = root / "input" / "gt"
     if gt:
@@ -223,7 +223,7 @@ def make_case(
         cams = CamerasFile.build(kc, registered, N_FRAMES, metric=gt, source="test")
         write_json(d / "cameras.json", cams.model_dump(mode="json"))
         if sparse:
-            from stages.io.colmap_model import CameraModel, write_text_model
+            from endopipe.stages.io.colmap_model import CameraModel, write_text_model
 
             write_text_model(
                 d / "sparse",

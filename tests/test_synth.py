@@ -17,9 +17,9 @@ import pytest
 from pydantic import ValidationError
 from scipy.ndimage import map_coordinates
 
-from stages.geometry import Intrinsics, backproject, project
-from stages.synth import Setup, SynthConfig, SynthSummary, generate_case, prepare
-from stages.synth.raycast import MeshGuide, camera_rays, trace_frame
+from endopipe.commands.synth import Setup, SynthConfig, SynthSummary, generate_case, prepare
+from endopipe.commands.synth.raycast import MeshGuide, camera_rays, trace_frame
+from endopipe.stages.camera import Camera, backproject, project
 
 SMALL = {"frames": 12, "width": 160, "height": 128}
 SHAPES = ("colon", "cavity")
@@ -39,8 +39,8 @@ def colon_setup() -> Setup:
     return prepare(SynthConfig(shape="colon", **SMALL))
 
 
-def load(case: Path) -> tuple[Intrinsics, np.ndarray, list[np.ndarray]]:
-    intr = Intrinsics.load(case / "intrinsics.json")
+def load(case: Path) -> tuple[Camera, np.ndarray, list[np.ndarray]]:
+    intr = Camera.load(case / "intrinsics.json")
     poses = np.array(json.loads((case / "gt" / "poses.json").read_text())["poses"])
     depths = [np.load(p) for p in sorted((case / "gt" / "depth").glob("*.npy"))]
     return intr, poses, depths
@@ -75,12 +75,11 @@ def test_case_folder_has_every_file(cases: dict, shape: str) -> None:
 def test_depth_reprojects_into_the_next_frame(cases: dict, shape: str) -> None:
     """Frame i's depth, moved with the GT poses, is frame i+1's depth where both see it."""
     intr, poses, depths = load(cases[shape][0])
-    K = intr.matrix()
     errors, compared = [], 0
     for i in range(len(depths) - 1):
         valid = depths[i] > 0
-        pts = backproject(depths[i].astype(np.float64), K, poses[i])[valid]
-        uv, z = project(pts, K, poses[i + 1])
+        pts = backproject(intr, depths[i].astype(np.float64), poses[i])[valid]
+        uv, z = project(intr, pts, poses[i + 1])
         inside = (
             (z > 0)
             & (uv[:, 0] >= 0)
@@ -106,7 +105,7 @@ def test_mesh_lies_on_the_backprojected_depth(cases: dict, shape: str) -> None:
     intr, poses, depths = load(case)
     pts = np.concatenate(
         [
-            backproject(depths[i].astype(np.float64), intr.matrix(), poses[i])[depths[i] > 0]
+            backproject(intr, depths[i].astype(np.float64), poses[i])[depths[i] > 0]
             for i in (0, 6, 11)
         ]
     )

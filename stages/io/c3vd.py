@@ -21,9 +21,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.errors import InputError
-from stages.geometry import Intrinsics
-from stages.io.sources import ImageListSource, load_intrinsics_file
+from endopipe.pipeline.errors import InputError
+from endopipe.stages.camera import Camera
+from endopipe.stages.io.sources import ImageListSource, load_intrinsics_file
 
 NAME = "c3vd"
 LAYOUT = "a folder of NNNN_color.png with NNNN_depth.tiff and pose.txt"
@@ -88,7 +88,7 @@ def read_poses(path: Path) -> list[np.ndarray]:
     return poses
 
 
-def find_intrinsics(seq: Path) -> Intrinsics | None:
+def find_intrinsics(seq: Path) -> Camera | None:
     for folder in (seq, seq.parent):
         if (folder / "intrinsics.json").is_file():
             return load_intrinsics_file(folder / "intrinsics.json")
@@ -102,7 +102,7 @@ class C3VDSource(ImageListSource):
         return C3VDGroundTruth(self.path) if self.gt_dir is not None else None
 
 
-def open_sequence(path: Path, intrinsics: Intrinsics | None = None) -> C3VDSource:
+def open_sequence(path: Path, intrinsics: Camera | None = None) -> C3VDSource:
     path = Path(path)
     frames = numbered(path, COLOR)
     if not frames:

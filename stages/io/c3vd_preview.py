@@ -21,10 +21,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.errors import InputError
-from stages.geometry import Intrinsics
-from stages.io.c3vd import numbered, numbered_file
-from stages.io.sources import ImageListSource, load_intrinsics_file
+from endopipe.pipeline.errors import InputError
+from endopipe.stages.camera import Camera
+from endopipe.stages.io.c3vd import numbered, numbered_file
+from endopipe.stages.io.sources import ImageListSource, load_intrinsics_file
 
 NAME = "c3vd_preview"
 LAYOUT = "rgb/NNNN.png with depth_vis_gray/NNNN.png (relative depth only)"
@@ -41,7 +41,7 @@ class C3VDPreviewSource(ImageListSource):
     kind = NAME
 
 
-def open_sequence(path: Path, intrinsics: Intrinsics | None = None) -> C3VDPreviewSource:
+def open_sequence(path: Path, intrinsics: Camera | None = None) -> C3VDPreviewSource:
     path = Path(path)
     frames = numbered(path / "rgb", NUMBERED)
     if not frames:

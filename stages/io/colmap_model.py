@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import InputError
-from stages.geometry import Intrinsics
+from endopipe.pipeline.errors import InputError
+from endopipe.stages.camera import Camera
 
 #: c2w_opengl = c2w_opencv @ OPENGL_FROM_OPENCV (and back: the matrix is its own inverse).
 OPENGL_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -46,7 +46,7 @@ class CameraModel:
     height: int
     params: list[float]
 
-    def intrinsics(self) -> Intrinsics:
+    def intrinsics(self) -> Camera:
         """The pinhole part, in endopipe's (OpenCV) pixel convention."""
         if self.model not in PINHOLE_PARAMS:
             raise InputError(
@@ -55,7 +55,7 @@ class CameraModel:
             )
         i_fx, i_fy, i_cx, i_cy = PINHOLE_PARAMS[self.model]
         p = self.params
-        return Intrinsics(
+        return Camera(
             width=self.width,
             height=self.height,
             fx=p[i_fx],
@@ -79,11 +79,11 @@ class CameraModel:
         return CameraModel(self.model, width, height, p)
 
     @classmethod
-    def pinhole(cls, k: Intrinsics) -> CameraModel:
+    def pinhole(cls, k: Camera) -> CameraModel:
         return cls("PINHOLE", k.width, k.height, [k.fx, k.fy, k.cx + 0.5, k.cy + 0.5])
 
     @classmethod
-    def from_intrinsics(cls, k: Intrinsics) -> CameraModel:
+    def from_intrinsics(cls, k: Camera) -> CameraModel:
         """PINHOLE, or OPENCV / FULL_OPENCV when `dist` ([k1, k2, p1, p2, k3]) is not all zero."""
         dist = [float(d) for d in (k.dist or [])]
         if not any(dist):
@@ -167,7 +167,7 @@ def write_text_model(folder: Path, camera: CameraModel, c2w: dict[str, np.ndarra
 
 def read_colmap_model(folder: Path) -> PoseSet:
     """A COLMAP model folder (text or binary, or its `sparse/0` inside) as a PoseSet."""
-    import pycolmap  # cv2 is already imported through the `stages` package
+    import pycolmap  # cv2 is already imported through the `endopipe.stages` package
 
     folder = Path(folder)
     for candidate in (folder, folder / "sparse" / "0", folder / "sparse", folder / "0"):

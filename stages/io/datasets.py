@@ -14,10 +14,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
-from pipeline.errors import InputError
-from stages.geometry import Intrinsics
-from stages.io import c3vd, c3vd_preview, hamlyn, simcol3d
-from stages.io.sources import (
+from endopipe.pipeline.errors import InputError
+from endopipe.stages.camera import Camera
+from endopipe.stages.io import c3vd, c3vd_preview, hamlyn, simcol3d
+from endopipe.stages.io.sources import (
     FORMATS,
     IMAGE_SUFFIXES,
     VIDEO_SUFFIXES,
@@ -49,7 +49,7 @@ def detect_dataset(path: Path) -> str | None:
     return None
 
 
-def open_dataset(path: Path, fmt: str, intrinsics: Intrinsics | None = None) -> InputSource:
+def open_dataset(path: Path, fmt: str, intrinsics: Camera | None = None) -> InputSource:
     reader = READERS.get(fmt)
     if reader is None:
         raise InputError(f"unknown data set format '{fmt}'; formats: {', '.join(READERS)}")

@@ -47,7 +47,7 @@ def open_ground_truth(gt_dir: Path | str) -> GroundTruthSource:
     gt_dir = Path(gt_dir)
     if (gt_dir / "poses.json").is_file() or (gt_dir / "depth").is_dir():
         return GroundTruth(gt_dir)
-    from stages.io.datasets import READERS, detect_dataset
+    from endopipe.stages.io.datasets import READERS, detect_dataset
 
     name = detect_dataset(gt_dir)
     if name is None:

@@ -19,9 +19,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.errors import InputError
-from stages.geometry import Intrinsics
-from stages.io.sources import ImageListSource, list_images
+from endopipe.pipeline.errors import InputError
+from endopipe.stages.camera import Camera
+from endopipe.stages.io.sources import ImageListSource, list_images
 
 NAME = "hamlyn"
 LAYOUT = "rectifiedNN/ with image01/*.jpg, depth01/*.png (mm), intrinsics.txt"
@@ -39,7 +39,7 @@ def frame_number(path: Path) -> int | None:
     return int(digits[-1]) if digits else None
 
 
-def read_intrinsics(seq: Path, first_frame: Path) -> Intrinsics | None:
+def read_intrinsics(seq: Path, first_frame: Path) -> Camera | None:
     """intrinsics.txt: the 3x3 camera matrix, or a 3x4 projection whose 3x3 part is read."""
     path = seq / "intrinsics.txt"
     if not path.is_file():
@@ -55,7 +55,7 @@ def read_intrinsics(seq: Path, first_frame: Path) -> Intrinsics | None:
     if image is None:
         raise InputError(f"cannot read image {first_frame}; remove it or replace it")
     h, w = image.shape[:2]
-    return Intrinsics(width=w, height=h, fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2])
+    return Camera(width=w, height=h, fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2])
 
 
 class HamlynSource(ImageListSource):
@@ -65,7 +65,7 @@ class HamlynSource(ImageListSource):
         return HamlynGroundTruth(self.path) if self.gt_dir is not None else None
 
 
-def open_sequence(path: Path, intrinsics: Intrinsics | None = None) -> HamlynSource:
+def open_sequence(path: Path, intrinsics: Camera | None = None) -> HamlynSource:
     path = Path(path)
     files = list_images(path / "image01") if (path / "image01").is_dir() else []
     if not files:

@@ -24,10 +24,10 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pipeline.errors import InputError
-from stages.geometry import Intrinsics
-from stages.io.c3vd import numbered, numbered_file
-from stages.io.sources import ImageListSource
+from endopipe.pipeline.errors import InputError
+from endopipe.stages.camera import Camera
+from endopipe.stages.io.c3vd import numbered, numbered_file
+from endopipe.stages.io.sources import ImageListSource
 
 NAME = "simcol3d"
 LAYOUT = "Frames_<S>/FrameBuffer_N.png + Depth_N.png, ../SavedPosition_<S>.txt, ../cam.txt"
@@ -79,7 +79,7 @@ def pose_files(frames_dir: Path) -> tuple[Path, Path]:
     return root / f"SavedPosition_{sid}.txt", root / f"SavedRotationQuaternion_{sid}.txt"
 
 
-def read_intrinsics(frames_dir: Path, first_frame: Path) -> Intrinsics | None:
+def read_intrinsics(frames_dir: Path, first_frame: Path) -> Camera | None:
     path = frames_dir.parent / "cam.txt"
     if not path.is_file():
         return None
@@ -93,7 +93,7 @@ def read_intrinsics(frames_dir: Path, first_frame: Path) -> Intrinsics | None:
     if image is None:
         raise InputError(f"cannot read image {first_frame}; remove it or replace it")
     h, w = image.shape[:2]
-    return Intrinsics(width=w, height=h, fx=K[0], fy=K[4], cx=K[2], cy=K[5])
+    return Camera(width=w, height=h, fx=K[0], fy=K[4], cx=K[2], cy=K[5])
 
 
 class SimCol3DSource(ImageListSource):
@@ -103,7 +103,7 @@ class SimCol3DSource(ImageListSource):
         return SimCol3DGroundTruth(self.path) if self.gt_dir is not None else None
 
 
-def open_sequence(path: Path, intrinsics: Intrinsics | None = None) -> SimCol3DSource:
+def open_sequence(path: Path, intrinsics: Camera | None = None) -> SimCol3DSource:
     path = Path(path)
     frames = numbered(path, FRAME)
     if not frames:

@@ -14,9 +14,9 @@ import av
 import cv2
 import numpy as np
 
-from pipeline.cache import digest_path, digest_text
-from pipeline.errors import InputError
-from stages.geometry import Intrinsics
+from endopipe.pipeline.cache import digest_path, digest_text
+from endopipe.pipeline.errors import InputError
+from endopipe.stages.camera import Camera
 
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg"}
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
@@ -49,7 +49,7 @@ class InputSource:
 
     kind: str = "video"
 
-    def __init__(self, path: Path, intrinsics: Intrinsics | None, gt_dir: Path | None) -> None:
+    def __init__(self, path: Path, intrinsics: Camera | None, gt_dir: Path | None) -> None:
         self.path = path
         self.intrinsics = intrinsics
         self.gt_dir = gt_dir
@@ -70,7 +70,7 @@ class InputSource:
         """The input's ground truth for evaluation (None when it has none)."""
         if self.gt_dir is None:
             return None
-        from stages.io.ground_truth import open_ground_truth
+        from endopipe.stages.io.ground_truth import open_ground_truth
 
         return open_ground_truth(self.gt_dir)
 
@@ -78,7 +78,7 @@ class InputSource:
 class VideoSource(InputSource):
     kind = "video"
 
-    def __init__(self, path: Path, intrinsics: Intrinsics | None, gt_dir: Path | None) -> None:
+    def __init__(self, path: Path, intrinsics: Camera | None, gt_dir: Path | None) -> None:
         super().__init__(path, intrinsics, gt_dir)
         self._probe()
 
@@ -129,7 +129,7 @@ class VideoSource(InputSource):
 class ImageFolderSource(InputSource):
     kind = "images"
 
-    def __init__(self, path: Path, intrinsics: Intrinsics | None, gt_dir: Path | None) -> None:
+    def __init__(self, path: Path, intrinsics: Camera | None, gt_dir: Path | None) -> None:
         super().__init__(path, intrinsics, gt_dir)
         self.files = list_images(path)
         if not self.files:
@@ -155,7 +155,7 @@ class ImageListSource(InputSource):
         self,
         path: Path,
         files: list[Path],
-        intrinsics: Intrinsics | None,
+        intrinsics: Camera | None,
         gt_dir: Path | None,
     ) -> None:
         super().__init__(path, intrinsics, gt_dir)
@@ -183,11 +183,11 @@ class ImageListSource(InputSource):
         return digest_text("|".join(h))
 
 
-def load_intrinsics_file(path: Path) -> Intrinsics:
+def load_intrinsics_file(path: Path) -> Camera:
     if not path.is_file():
         raise InputError(f"intrinsics file not found: {path}")
     try:
-        return Intrinsics.load(path)
+        return Camera.load(path)
     except ValueError as e:
         raise InputError(
             f"intrinsics file {path} is not valid ({_short(e)}); "
@@ -212,11 +212,11 @@ def open_input(
     intrinsics = load_intrinsics_file(intrinsics_file) if intrinsics_file else None
     case_dir = _case_folder_of(path)
     if fmt == "auto" and case_dir is None and path.is_dir():
-        from stages.io.datasets import detect_dataset
+        from endopipe.stages.io.datasets import detect_dataset
 
         fmt = detect_dataset(path) or "auto"
     if fmt not in ("auto", "case", "video", "images"):
-        from stages.io.datasets import open_dataset
+        from endopipe.stages.io.datasets import open_dataset
 
         return open_dataset(path, fmt, intrinsics)
     if fmt == "case" and case_dir is None:

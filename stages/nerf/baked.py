@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stages.geometry import Intrinsics
+from endopipe.stages.camera import Camera
 
 
 @dataclass
@@ -25,7 +25,7 @@ class BakedSurface:
     prior: object | None = None
 
     def __post_init__(self) -> None:
-        from stages.mesh_metrics import _raycasting_scene
+        from endopipe.stages.surface.evaluate import _raycasting_scene
 
         self._scene = _raycasting_scene(self.vertices, self.faces) if len(self.faces) else None
 
@@ -35,7 +35,7 @@ class BakedSurface:
         model,
         prior,
         c2ws: list[np.ndarray],
-        intrinsics: Intrinsics,
+        intrinsics: Camera,
         voxels_per_radius: int = 24,
         density_level: float | None = None,
         band: float = 0.6,
@@ -44,8 +44,8 @@ class BakedSurface:
         """Iso-surface of the field's density in the prior's band, over the cameras' frustums,
         at `density_level` per lumen radius (None: the density at the field's rendered surface,
         from `surface_density_level`)."""
-        from stages.mesh import MeshConfig, density_mesh, nerf_density_fn
-        from stages.nerf.render import surface_density_level
+        from endopipe.stages.mesh.stage import MeshConfig, density_mesh, nerf_density_fn
+        from endopipe.stages.nerf.render import surface_density_level
 
         level = None
         if density_level is None:
@@ -65,7 +65,7 @@ class BakedSurface:
         )
         return cls(np.asarray(mesh.vertices), np.asarray(mesh.faces), prior)
 
-    def render_depth(self, k: Intrinsics, c2w: np.ndarray) -> dict[str, np.ndarray]:
+    def render_depth(self, k: Camera, c2w: np.ndarray) -> dict[str, np.ndarray]:
         """z-depth (H, W) in world units and opacity (1 where the baked surface is hit). A ray
         that meets no baked surface (it runs down the lumen) takes the depth where it leaves
         the prior's tube, with opacity 0, or 0 without a prior."""

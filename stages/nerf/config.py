@@ -10,7 +10,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from pipeline.stage import StageConfig
+from endopipe.pipeline.stage import StageConfig
 
 
 class _Section(BaseModel):

@@ -20,8 +20,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from stages.nerf.config import FieldConfig
-from stages.nerf.encodings import HashGrid, VMGrid, sinusoidal, sinusoidal_dim
+from endopipe.stages.nerf.config import FieldConfig
+from endopipe.stages.nerf.encodings import HashGrid, VMGrid, sinusoidal, sinusoidal_dim
 
 
 def _mlp(dims: list[int]) -> nn.Sequential:

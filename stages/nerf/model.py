@@ -17,10 +17,10 @@ import math
 import torch
 from torch import nn
 
-from stages.nerf.config import NerfConfig
-from stages.nerf.field import RadianceField, make_field
-from stages.nerf.sampling import coarse_then_fine, composite, spaced, two_pass
-from stages.nerf.scene import SceneBox
+from endopipe.stages.nerf.config import NerfConfig
+from endopipe.stages.nerf.field import RadianceField, make_field
+from endopipe.stages.nerf.sampling import coarse_then_fine, composite, spaced, two_pass
+from endopipe.stages.nerf.scene import SceneBox
 
 
 class NerfModel(nn.Module):

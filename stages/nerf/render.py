@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from stages.geometry import Intrinsics
-from stages.nerf.config import NerfConfig
-from stages.nerf.data import pixel_rays
-from stages.nerf.model import NerfModel
-from stages.nerf.scene import SceneBox
+from endopipe.stages.camera import Camera
+from endopipe.stages.nerf.config import NerfConfig
+from endopipe.stages.nerf.data import pixel_rays
+from endopipe.stages.nerf.model import NerfModel
+from endopipe.stages.nerf.scene import SceneBox
 
 MODEL_FILE = "model.pt"
 
@@ -56,7 +56,7 @@ def scene_bounds(model: NerfModel, prior, o: torch.Tensor, d: torch.Tensor):
     """near / far (scene depth) of scene-frame rays: from the prior, else from the box."""
     if prior is None:
         return model.box.ray_bounds(o, d, model.cfg.sampling.near_fraction)
-    from stages.nerf.train import PriorBounds
+    from endopipe.stages.nerf.train import PriorBounds
 
     near, far, _ = PriorBounds(prior, model.box, model.cfg).bounds(
         o, d, model.cfg.sampling.bounds_margin
@@ -68,7 +68,7 @@ def scene_bounds(model: NerfModel, prior, o: torch.Tensor, d: torch.Tensor):
 def render_image(
     model: NerfModel,
     prior,
-    intrinsics: Intrinsics,
+    intrinsics: Camera,
     c2w: np.ndarray,
     height: int | None = None,
     width: int | None = None,
@@ -172,7 +172,7 @@ def density_grid(
 def surface_density_level(
     model: NerfModel,
     prior,
-    intrinsics: Intrinsics,
+    intrinsics: Camera,
     c2ws: list[np.ndarray],
     rays: int = 4096,
     seed: int = 0,

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from stages.cameras import SparseObservations
+from endopipe.stages.poses.view import SparseObservations
 
 
 @dataclass

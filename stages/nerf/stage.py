@@ -15,21 +15,21 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pipeline.errors import EndopipeError
-from pipeline.stage import Stage, StageContext, Summary, write_json
-from stages.metrics import depth_sequence_metrics
-from stages.nerf import losses
-from stages.nerf.config import NerfConfig
-from stages.nerf.data import FrameSet, holdout_split, pixel_rays
-from stages.nerf.render import MODEL_FILE, render_image, save_model
-from stages.nerf.scene import SceneBox
-from stages.nerf.sparse_depth import sparse_depth_targets
-from stages.nerf.train import CHECKPOINT, PriorBounds, Trainer, auto_threads, pick_device
+from endopipe.pipeline.errors import EndopipeError
+from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
+from endopipe.stages.metrics.depth import depth_sequence_metrics
+from endopipe.stages.nerf import losses
+from endopipe.stages.nerf.config import NerfConfig
+from endopipe.stages.nerf.data import FrameSet, holdout_split, pixel_rays
+from endopipe.stages.nerf.render import MODEL_FILE, render_image, save_model
+from endopipe.stages.nerf.scene import SceneBox
+from endopipe.stages.nerf.sparse_depth import sparse_depth_targets
+from endopipe.stages.nerf.train import CHECKPOINT, PriorBounds, Trainer, auto_threads, pick_device
 
 
 def load_prior(centerline) -> object:
     """The LumenPrior of the centerline stage (its folder, or a view with a folder)."""
-    from stages.prior import LumenPrior
+    from endopipe.stages.centerline.prior import LumenPrior
 
     if hasattr(centerline, "prior") and not callable(centerline.prior):
         return centerline.prior
@@ -193,7 +193,7 @@ class Nerf(Stage):
 
 def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) -> dict:
     """Render the held-out frames: PSNR on usable pixels, depth metrics against ground truth."""
-    from stages.io.ground_truth import GroundTruth
+    from endopipe.stages.io.ground_truth import GroundTruth
 
     held = held_ids[: cfg.train.eval_frames] if cfg.train.eval_frames else held_ids
     gt = GroundTruth(ingest.gt_dir) if ingest.gt_dir is not None else None

@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from stages.nerf import losses
-from stages.nerf.config import NerfConfig
-from stages.nerf.data import FrameSet, RaySampler, neighbours, pixel_rays
-from stages.nerf.model import NerfModel
-from stages.nerf.scene import SceneBox
-from stages.nerf.sparse_depth import SparseDepth
+from endopipe.stages.nerf import losses
+from endopipe.stages.nerf.config import NerfConfig
+from endopipe.stages.nerf.data import FrameSet, RaySampler, neighbours, pixel_rays
+from endopipe.stages.nerf.model import NerfModel
+from endopipe.stages.nerf.scene import SceneBox
+from endopipe.stages.nerf.sparse_depth import SparseDepth
 
 CHECKPOINT = "checkpoint.pt"
 LOG_FIELDS = [

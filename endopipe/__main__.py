@@ -1,0 +1,5 @@
+"""`python -m endopipe ...` is the same as the `endopipe` command."""
+
+from endopipe.cli import entry
+
+entry()

@@ -1,0 +1,634 @@
+"""The composition root: wires the stages into the DAG and exposes the commands.
+
+Every failure the user can act on ends as one line on stderr and a non-zero exit code.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Annotated
+
+import click
+import typer
+from rich.console import Console
+from rich.table import Table
+
+import endopipe.stages  # noqa: F401  (imports cv2 before anything can import pycolmap)
+from endopipe.pipeline.config import default_yaml, describe_fields, load_config
+from endopipe.pipeline.errors import EndopipeError
+from endopipe.pipeline.executors import CaseRow, CaseTask
+from endopipe.pipeline.runner import Pipeline, RunRecord, ensure_writable
+from endopipe.pipeline.stage import CaseInfo, Stage, write_json
+
+console = Console(stderr=True)
+out = Console()
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="endopipe: monocular endoscopic video -> poses, depth, mesh and an evaluation report.",
+)
+DEFAULT_WORKDIR = Path("workdir")
+
+
+def all_stages() -> list[type[Stage]]:
+    """The DAG in order. Imported lazily so `endopipe --help` stays fast."""
+    from endopipe.stages.centerline.stage import Centerline
+    from endopipe.stages.depth.stage import Depth
+    from endopipe.stages.ingest.stage import Ingest
+    from endopipe.stages.mesh.stage import Mesh
+    from endopipe.stages.nerf.stage import Nerf
+    from endopipe.stages.poses.stage import Poses
+    from endopipe.stages.report.stage import Report
+
+    return [Ingest, Poses, Centerline, Nerf, Depth, Mesh, Report]
+
+
+def build_pipeline() -> Pipeline:
+    return Pipeline(all_stages())
+
+
+def case_name_for(input_path: Path) -> str:
+    p = input_path.resolve()
+    if p.is_file() and p.name == "video.mp4" and (p.parent / "intrinsics.json").exists():
+        return p.parent.name
+    if p.is_dir() and p.name == "frames":
+        return p.parent.name
+    return p.stem if p.is_file() else p.name
+
+
+def prepare_case(
+    input_path: Path,
+    workdir: Path,
+    name: str | None,
+    intrinsics: Path | None,
+    input_format: str | None = None,
+) -> Path:
+    """Check the input, then create the case folder and its case.json (only then)."""
+    from endopipe.stages.io.sources import open_input
+
+    source = open_input(input_path, intrinsics, format=input_format)
+    digest = source.digest()
+    ensure_writable(workdir)
+    case_dir = workdir / (name or case_name_for(input_path))
+    case_dir.mkdir(parents=True, exist_ok=True)
+    info = CaseInfo(
+        name=case_dir.name,
+        input=str(Path(input_path).resolve()),
+        kind=source.kind,
+        input_digest=digest,
+        intrinsics_file=str(intrinsics.resolve()) if intrinsics else None,
+        gt_dir=str(source.gt_dir) if source.gt_dir else None,
+    )
+    case_json = case_dir / "case.json"
+    if not case_json.exists() or CaseInfo.load(case_dir) != info:
+        tmp = case_dir / ".case.json.tmp"
+        write_json(tmp, info.model_dump())
+        tmp.replace(case_json)
+    return case_dir
+
+
+def resolve_case(case: str, workdir: Path) -> Path:
+    for candidate in (Path(case), workdir / case):
+        if (candidate / "case.json").is_file():
+            return candidate
+    raise EndopipeError(
+        f"no endopipe case at {case} (nor {workdir / case}); run `endopipe run INPUT` first"
+    )
+
+
+def print_record(record: RunRecord, case_dir: Path) -> None:
+    ran = [s.stage for s in record.stages if s.status == "ran"]
+    cached = [s.stage for s in record.stages if s.status == "cached"]
+    console.print(
+        f"[bold]{record.case}[/bold]: ran {len(ran)} stage(s), {len(cached)} cached, "
+        f"{record.wall_s:.1f} s -> {case_dir}"
+    )
+
+
+@app.command()
+def run(
+    input: Annotated[
+        Path, typer.Argument(help="Video file, image folder or endopipe case folder.")
+    ],
+    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    name: Annotated[str | None, typer.Option(help="Case name (default: from the input).")] = None,
+    config: Annotated[
+        list[str] | None, typer.Option("--config", help="Preset name or YAML file; repeatable.")
+    ] = None,
+    set_: Annotated[
+        list[str] | None, typer.Option("--set", help="stage.key=value; repeatable.")
+    ] = None,
+    intrinsics: Annotated[
+        Path | None, typer.Option(help="intrinsics.json for the input's frames.")
+    ] = None,
+    from_stage: Annotated[
+        str | None, typer.Option("--from", help="Re-run from this stage.")
+    ] = None,
+    until: Annotated[str | None, typer.Option(help="Stop after this stage.")] = None,
+    force: Annotated[bool, typer.Option(help="Ignore the cache.")] = False,
+    dry_run: Annotated[bool, typer.Option(help="Show what would run, run nothing.")] = False,
+    wait: Annotated[bool, typer.Option(help="Wait for another run on the same case.")] = False,
+    quiet: Annotated[bool, typer.Option(help="No progress output.")] = False,
+) -> None:
+    """Run the pipeline on INPUT: what is stale runs, what is fresh is reused."""
+    pipe = build_pipeline()
+    for stage in (from_stage, until):
+        if stage is not None:
+            pipe.index(stage)
+    configs = load_config(pipe.stages, config or [], set_ or [])
+    case_dir = prepare_case(input, workdir, name, intrinsics)
+    record = pipe.run(
+        case_dir,
+        configs,
+        until=until,
+        from_stage=from_stage,
+        force=force,
+        dry_run=dry_run,
+        wait_for_lock=wait,
+        console=console,
+        quiet=quiet,
+    )
+    if dry_run:
+        for s in record.stages:
+            out.print(
+                f"{s.stage:<12} {'cached' if s.status == 'cached' else 'would run'}  ({s.reason})"
+            )
+        return
+    print_record(record, case_dir)
+
+
+@app.command()
+def status(
+    case: Annotated[str, typer.Argument(help="Case folder or name under --workdir.")],
+    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    config: Annotated[list[str] | None, typer.Option("--config")] = None,
+    set_: Annotated[list[str] | None, typer.Option("--set")] = None,
+) -> None:
+    """Each stage of CASE: fresh, stale (and why) or missing, for the given config."""
+    pipe = build_pipeline()
+    case_dir = resolve_case(case, workdir)
+    configs = load_config(pipe.stages, config or [], set_ or [])
+    table = Table(title=f"{case_dir.name}")
+    for col in ("stage", "state", "why", "folder"):
+        table.add_column(col)
+    for p in pipe.status(case_dir, configs):
+        state = "fresh" if p.fresh else ("missing" if p.reason == "missing" else "stale")
+        colour = {"fresh": "green", "stale": "yellow", "missing": "red"}[state]
+        table.add_row(p.stage, f"[{colour}]{state}[/{colour}]", p.reason, p.folder)
+    out.print(table)
+
+
+@app.command()
+def clean(
+    case: Annotated[str, typer.Argument(help="Case folder or name under --workdir.")],
+    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    stage: Annotated[
+        str | None, typer.Option(help="Remove this stage and its downstream only.")
+    ] = None,
+) -> None:
+    """Remove a case's stage outputs (all, or one stage and what depends on it)."""
+    pipe = build_pipeline()
+    case_dir = resolve_case(case, workdir)
+    if stage is not None:
+        pipe.index(stage)
+    removed = pipe.clean(case_dir, stage)
+    out.print(f"removed {len(removed)} folder(s): {', '.join(removed) or 'none'}")
+
+
+@app.command()
+def export(
+    case: Annotated[str, typer.Argument(help="Case folder or name under --workdir.")],
+    format_: Annotated[str, typer.Option("--format", help="nerfstudio | colmap | endonerf | ply")],
+    out_dir: Annotated[
+        Path | None,
+        typer.Option("--out", help="Output folder (default: <case>/exports/<format>)."),
+    ] = None,
+    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    symlink: Annotated[
+        bool, typer.Option(help="nerfstudio / colmap: symlink the images instead of copying.")
+    ] = False,
+    endonerf_axes: Annotated[
+        str,
+        typer.Option(
+            help="endonerf: rotation columns of poses_bounds.npy: llff (down, right, back) | "
+            "opengl (right, up, back) | opencv (right, down, forward)."
+        ),
+    ] = "llff",
+) -> None:
+    """Export a case's poses, frames, depth and mesh for nerfstudio, COLMAP, EndoNeRF or PLY."""
+    from endopipe.commands.export import export_case
+
+    case_dir = resolve_case(case, workdir)
+    result = export_case(case_dir, format_, out_dir, symlink=symlink, endonerf_axes=endonerf_axes)
+    out.print(f"exported {result.frames} frame(s) as {result.format} to {result.out}")
+    for note in result.notes:
+        out.print(f"  {note}", markup=False, highlight=False)
+
+
+@app.command("stages")
+def list_stages(
+    yaml_: Annotated[bool, typer.Option("--yaml", help="Print configs/default.yaml.")] = False,
+) -> None:
+    """Every stage with its config fields, types, defaults and help."""
+    pipe = build_pipeline()
+    if yaml_:
+        out.print(default_yaml(pipe.stages), markup=False, highlight=False, soft_wrap=True)
+        return
+    for stage in pipe.stages:
+        needs = ", ".join(stage.needs) or "input"
+        out.print(f"[bold]{pipe.folder_name(stage.name)}[/bold]  needs: {needs}  v{stage.version}")
+        out.print(f"  {stage.describe()}")
+        table = Table(show_header=True, box=None, padding=(0, 2))
+        for col in ("key", "type", "default", "help"):
+            table.add_column(col)
+        for key, type_name, default, help_text in describe_fields(stage.Config):
+            table.add_row(f"{stage.name}.{key}", type_name, default, help_text)
+        out.print(table)
+
+
+@app.command()
+def synth(
+    out_dir: Annotated[Path, typer.Argument(metavar="OUT", help="Case folder to write.")],
+    seed: int = 0,
+    frames: int = 60,
+    width: int = 320,
+    height: int = 256,
+    shape: Annotated[str, typer.Option(help="colon | cavity")] = "colon",
+) -> None:
+    """Write a synthetic lumen case with exact ground truth (depth, poses, mesh, speculars)."""
+    from pydantic import ValidationError
+
+    from endopipe.commands.synth import SynthConfig
+
+    try:
+        cfg = SynthConfig(seed=seed, frames=frames, width=width, height=height, shape=shape)
+    except ValidationError as e:
+        err = e.errors()[0]
+        raise EndopipeError(f"synth {'.'.join(map(str, err['loc']))}: {err['msg']}") from None
+    ensure_writable(out_dir.parent if out_dir.parent != Path("") else Path("."))
+    summary = write_synth(out_dir, cfg)
+    out.print(
+        f"wrote {summary.frames} frames ({shape}, path {summary.path_length_mm:.1f} mm, "
+        f"mean radius {summary.mean_radius_mm:.1f} mm) to {out_dir} in {summary.seconds:.1f} s"
+    )
+
+
+def write_synth(out_dir: Path, cfg) -> object:
+    from rich.progress import Progress
+
+    from endopipe.commands.synth import generate_case
+
+    with Progress(console=console, transient=True) as bar:
+        task = bar.add_task("synth", total=cfg.frames)
+        return generate_case(out_dir, cfg, progress=lambda i, n: bar.update(task, completed=i + 1))
+
+
+@app.command()
+def demo(
+    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    frames: int = 24,
+) -> None:
+    """Synthesise a small colon case and run every stage on it."""
+    from endopipe.commands.synth import SynthConfig
+
+    ensure_writable(workdir)
+    case_src = workdir / "demo_input"
+    cfg = SynthConfig(seed=0, frames=frames, width=320, height=256, shape="colon")
+    t0 = time.perf_counter()
+    if not (case_src / "intrinsics.json").exists():
+        console.print(f"[bold]synthesising[/bold] a {frames}-frame colon into {case_src}")
+        write_synth(case_src, cfg)
+    pipe = build_pipeline()
+    configs = load_config(pipe.stages, ["demo"] if _has_preset("demo") else [], [])
+    case_dir = prepare_case(case_src, workdir, "demo", None)
+    record = pipe.run(case_dir, configs, console=console)
+    print_record(record, case_dir)
+    out.print(f"demo finished in {time.perf_counter() - t0:.1f} s; outputs:")
+    for stage in pipe.stages:
+        out.print(f"  {stage.name:<11} {case_dir / pipe.folder_name(stage.name)}")
+
+
+@app.command()
+def bench(
+    workdir: Annotated[Path, typer.Option(help="Where cases and results go.")] = Path(
+        "workdir/bench"
+    ),
+    quick: Annotated[
+        bool, typer.Option(help="One small colon, three variants (< 10 min).")
+    ] = False,
+    set_: Annotated[list[str] | None, typer.Option("--set", help="Extra stage.key=value.")] = None,
+    case: Annotated[
+        list[str] | None, typer.Option("--case", help="Only this bench case (repeatable).")
+    ] = None,
+    variant: Annotated[
+        list[str] | None,
+        typer.Option("--variant", help="Only this variant, e.g. full (repeatable)."),
+    ] = None,
+) -> None:
+    """The paper's Table 1 on fixed-seed synthetic cases with ablations; CSV and markdown."""
+    from endopipe.commands.bench import markdown_table, plan, run_bench, write_csv
+
+    ensure_writable(workdir)
+    pipe = build_pipeline()
+    load_config(pipe.stages, [], set_ or [])  # validate extra settings before hours of work
+    bench_plan = plan(quick, case, variant)
+
+    def save(rows: list[dict]) -> None:  # after every run: a crash keeps the finished rows
+        write_csv(workdir / "bench.csv", rows)
+        (workdir / "bench.md").write_text(markdown_table(rows) + "\n")
+
+    t0 = time.perf_counter()
+    rows = run_bench(pipe, workdir, bench_plan, prepare_case, console, set_ or [], save)
+    save(rows)
+    table = markdown_table(rows)
+    out.print(table, markup=False, highlight=False, soft_wrap=True)
+    out.print(
+        f"bench finished in {time.perf_counter() - t0:.0f} s; "
+        f"{workdir / 'bench.csv'}, {workdir / 'bench.md'}"
+    )
+
+
+def _has_preset(name: str) -> bool:
+    from endopipe.pipeline.config import CONFIG_DIR
+
+    return (CONFIG_DIR / f"{name}.yaml").is_file()
+
+
+# ---------------------------------------------------------------- endopipe batch
+
+
+def process_case(task: CaseTask) -> CaseRow:
+    """One case of `endopipe batch`, in whatever process (or cluster job) the executor gives it.
+
+    Top-level and picklable; it never raises: a failure becomes the row's one-line reason.
+    With `task.check_only` it changes nothing and only says whether every stage is already
+    fresh (status "ok"), the input cannot be used ("failed"), or something would run
+    ("pending").
+    """
+    from endopipe.pipeline.cache import Manifest
+    from endopipe.pipeline.executors import CaseRow, limit_threads, numeric_leaves, one_line
+    from endopipe.stages.io.sources import open_input
+
+    if task.threads:
+        limit_threads(task.threads)
+    t0, started = time.perf_counter(), time.time()
+    row = CaseRow(case=task.name, status="failed", reader=task.reader, input=task.input)
+    workdir, path = Path(task.workdir), Path(task.input)
+    case_dir = workdir / task.name
+    try:
+        pipe = build_pipeline()  # imports the stages: not counted in the case's wall time
+        t0, started = time.perf_counter(), time.time()
+        configs = {
+            s.name: s.Config.model_validate(task.configs.get(s.name, {})) for s in pipe.stages
+        }
+        selected = [s.name for s in pipe.selection(task.until)]
+        source = open_input(path, None, format=task.reader)
+        gt = source.ground_truth()
+        row.gt_kind = gt.kind if gt is not None else ""
+        if task.check_only:
+            if not _all_fresh(pipe, case_dir, path, source, configs, task.until):
+                row.status = "pending"
+                return row
+            row.stages_cached = selected
+        else:
+            case_dir = prepare_case(path, workdir, task.name, None, task.reader)
+            record = pipe.run(case_dir, configs, until=task.until, quiet=True)
+            row.stages_ran = [s.stage for s in record.stages if s.status == "ran"]
+            row.stages_cached = [s.stage for s in record.stages if s.status == "cached"]
+        for name in selected:
+            manifest = Manifest.load(case_dir / pipe.folder_name(name))
+            if manifest is None:
+                continue
+            row.compute_s += manifest.wall_s
+            row.peak_rss_mb = max(row.peak_rss_mb, manifest.peak_rss_mb)
+            for key, value in numeric_leaves(manifest.summary).items():
+                row.metrics[f"{name}.{key}"] = value
+        report = next(iter(sorted(case_dir.glob("*_report/report.html"))), None)
+        row.report = report.relative_to(workdir).as_posix() if report else None
+        row.status = "ok"
+    except EndopipeError as e:
+        row.reason = one_line(e)
+        _note_failed_stage(row, case_dir, started)
+    except Exception as e:  # an endopipe bug: one line in the row, the traceback in a log
+        if task.check_only:  # let the real run meet it and report it
+            row.status = "pending"
+            return row
+        row.reason = f"internal error: {type(e).__name__}: {one_line(e)}"
+        log = workdir / ".batch" / "logs" / f"{task.name}.log"
+        try:
+            log.parent.mkdir(parents=True, exist_ok=True)
+            log.write_text(traceback.format_exc())
+            row.reason += f" (traceback in {log})"
+        except OSError:
+            pass
+        _note_failed_stage(row, case_dir, started)
+    row.wall_s = time.perf_counter() - t0
+    return row
+
+
+def _all_fresh(
+    pipe: Pipeline, case_dir: Path, path: Path, source, configs: dict, until: str | None
+) -> bool:
+    if not (case_dir / "case.json").is_file():
+        return False
+    info = CaseInfo.load(case_dir)
+    if info.input != str(path.resolve()) or info.input_digest != source.digest():
+        return False
+    return all(p.fresh for p in pipe.plan(case_dir, info, configs, until))
+
+
+def _note_failed_stage(row: CaseRow, case_dir: Path, started: float) -> None:
+    """Which stages ran before the failure, and which failed: from the run's record."""
+    runs = case_dir / "runs"
+    if not runs.is_dir():
+        return
+    recent = sorted(p for p in runs.glob("*.json") if p.stat().st_mtime >= started - 0.05)
+    if not recent:
+        return
+    record = RunRecord.model_validate_json(recent[-1].read_text())
+    row.stages_ran = [s.stage for s in record.stages if s.status == "ran"]
+    row.stages_cached = [s.stage for s in record.stages if s.status == "cached"]
+    row.failed_stage = next((s.stage for s in record.stages if s.status == "failed"), None)
+
+
+def _print_case_row(row: CaseRow) -> None:
+    from rich.markup import escape
+
+    if row.status == "ok":
+        ran = "+".join(row.stages_ran) or "nothing (all cached)"
+        gt = f"  [yellow]{row.gt_kind} ground truth[/yellow]" if row.gt_kind == "pseudo" else ""
+        console.print(
+            f"[green]✓[/green] {escape(row.case)}  [dim]{row.reader}[/dim]  ran {ran}, "
+            f"{row.wall_s:.1f} s{gt}"
+        )
+    else:
+        console.print(
+            f"[red]✗[/red] {escape(row.case)}  [dim]{row.reader}[/dim]  {escape(row.reason)}"
+        )
+
+
+@app.command()
+def batch(
+    folder: Annotated[
+        Path, typer.Argument(help="A data set folder, a folder of videos or cases, or one case.")
+    ],
+    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    config: Annotated[
+        list[str] | None, typer.Option("--config", help="Preset name or YAML file; repeatable.")
+    ] = None,
+    set_: Annotated[
+        list[str] | None, typer.Option("--set", help="stage.key=value; repeatable.")
+    ] = None,
+    format_: Annotated[
+        str,
+        typer.Option(
+            "--format",
+            help="Reader for every case: auto (detect) | case | video | images | hamlyn | c3vd "
+            "| simcol3d.",
+        ),
+    ] = "auto",
+    executor: Annotated[str, typer.Option(help="Where cases run: local | slurm | ray.")] = "local",
+    jobs: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            help="Cases at once. local: worker processes (default 1); slurm: array "
+            "parallelism (default from the cluster config); ray: slots of a local cluster.",
+        ),
+    ] = None,
+    until: Annotated[str | None, typer.Option(help="Stop each case after this stage.")] = None,
+    cluster_config: Annotated[
+        Path | None, typer.Option(help="Slurm / Ray settings (default configs/cluster.yaml).")
+    ] = None,
+    ray_address: Annotated[
+        str | None,
+        typer.Option(help="Ray cluster to join (auto, ray://host:10001); default: a local one."),
+    ] = None,
+    dry_run: Annotated[bool, typer.Option(help="List the cases and readers only.")] = False,
+) -> None:
+    """Run every case under FOLDER through the pipeline; write batch.csv and batch.html."""
+    from rich.markup import escape
+
+    from endopipe.pipeline.executors import (
+        EXECUTORS,
+        ClusterConfig,
+        load_cluster_config,
+        run_cases,
+        write_csv,
+        write_html,
+    )
+    from endopipe.stages.io.datasets import find_cases
+
+    pipe = build_pipeline()
+    if until is not None:
+        pipe.index(until)
+    if executor not in EXECUTORS:
+        raise EndopipeError(f"unknown executor '{executor}'; executors: {', '.join(EXECUTORS)}")
+    configs = load_config(pipe.stages, config or [], set_ or [])
+    cluster = load_cluster_config(cluster_config) if executor != "local" else ClusterConfig()
+    ensure_writable(workdir)
+    wd = workdir.resolve()
+    cases = find_cases(folder, format_, skip=(wd,))
+    if not cases:
+        raise EndopipeError(
+            f"no cases found in {folder}: expected videos, image folders, endopipe case folders "
+            "or Hamlyn / C3VD / SimCol3D sequences (or pass --format)"
+        )
+    table = Table(title=f"{len(cases)} case(s) in {folder}")
+    for col in ("case", "reader", "input"):
+        table.add_column(col, overflow="fold")
+    for c in cases:
+        table.add_row(escape(c.name), c.format, escape(str(c.path)))
+    out.print(table)
+    if dry_run:
+        return
+    resolved = {name: cfg.model_dump(mode="json") for name, cfg in configs.items()}
+    tasks = [
+        CaseTask(
+            name=c.name,
+            input=str(c.path.resolve()),
+            reader=c.format,
+            workdir=str(wd),
+            configs=resolved,
+            until=until,
+        )
+        for c in cases
+    ]
+    t0 = time.perf_counter()
+    rows = run_cases(
+        executor,
+        process_case,
+        tasks,
+        jobs=jobs,
+        workdir=wd,
+        cluster=cluster,
+        ray_address=ray_address,
+        on_row=_print_case_row,
+        note=lambda m: console.print(f"[dim]{escape(m)}[/dim]"),
+    )
+    elapsed = time.perf_counter() - t0
+    csv_path = write_csv(rows, wd / "batch.csv")
+    html_path = write_html(rows, wd / "batch.html", title=f"endopipe batch: {folder}")
+    failed = [r for r in rows if r.status != "ok"]
+    out.print(
+        f"{len(rows)} case(s), {len(rows) - len(failed)} ok, {len(failed)} failed, "
+        f"{elapsed:.1f} s with the {executor} executor -> {csv_path}, {html_path}"
+    )
+    if failed:
+        raise EndopipeError(
+            f"{len(failed)} of {len(rows)} case(s) failed; reasons in {csv_path}", exit_code=3
+        )
+
+
+def _click_errors() -> tuple[type[Exception], ...]:
+    """Usage errors: click's, and those of the click that newer typer releases vendor."""
+    kinds: list[type[Exception]] = [click.ClickException]
+    try:
+        from typer._click.exceptions import ClickException as VendoredClickException
+    except ImportError:  # typer < 0.20 uses click itself
+        pass
+    else:
+        kinds.append(VendoredClickException)
+    return tuple(kinds)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: one clear line and an exit code for every failure, never a traceback."""
+    try:
+        app(args=argv, standalone_mode=False)
+        return 0
+    except EndopipeError as e:
+        console.print(f"[bold red]error:[/bold red] {e}", highlight=False, soft_wrap=True)
+        return e.exit_code
+    except click.exceptions.Exit as e:
+        return e.exit_code
+    except click.exceptions.Abort:
+        console.print("[bold red]aborted[/bold red]")
+        return 130
+    except _click_errors() as e:
+        console.print(f"[bold red]error:[/bold red] {e.format_message()}", soft_wrap=True)
+        return e.exit_code
+    except KeyboardInterrupt:
+        console.print("[bold red]interrupted[/bold red]; re-run the same command to resume")
+        return 130
+    except Exception as e:  # an endopipe bug: one line here, the traceback in a log file
+        log = Path.home() / ".cache" / "endopipe" / "last_error.log"
+        try:
+            log.parent.mkdir(parents=True, exist_ok=True)
+            log.write_text(traceback.format_exc())
+            where = f"; traceback in {log}"
+        except OSError:
+            where = ""
+        console.print(
+            f"[bold red]internal error:[/bold red] {type(e).__name__}: {e}{where}",
+            highlight=False,
+            soft_wrap=True,
+        )
+        return 1
+
+
+def entry() -> None:
+    sys.exit(main())

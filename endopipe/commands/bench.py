@@ -1,0 +1,234 @@
+"""`endopipe bench`: the paper's Table 1 on fixed-seed synthetic cases, with ablations.
+
+Every variant runs the real pipeline; variants of one case share its cached ingest, poses and
+centerline stages, so only the NeRF and what follows re-run per variant.
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from pydantic import BaseModel
+
+from endopipe.pipeline.cache import Manifest
+from endopipe.pipeline.config import load_config
+from endopipe.pipeline.errors import ConfigError, EndopipeError
+from endopipe.pipeline.runner import Pipeline
+
+#: name -> --set overrides. "plain" is a NeRF without the prior, the near-light model and the
+#: depth regularisers (and without the SfM-point depth): the paper's NeRF-endo baseline.
+VARIANTS: dict[str, list[str]] = {
+    "full": [],
+    "no_prior": ["nerf.loss.prior=false"],
+    "no_smooth": ["nerf.loss.smooth=false"],
+    "no_geo": ["nerf.loss.geo=false"],
+    "no_sparse": ["nerf.loss.sparse_weight=0"],
+    "plain": [
+        "nerf.loss.prior=false",
+        "nerf.loss.smooth=false",
+        "nerf.loss.geo=false",
+        "nerf.loss.sparse_weight=0",
+        "nerf.shading.enabled=false",
+        "nerf.sampling.bounds=box",
+    ],
+}
+
+COLUMNS = (
+    "case",
+    "variant",
+    "error",
+    "abs_rel",
+    "sq_rel",
+    "rmse",
+    "rmse_log",
+    "delta1",
+    "chamfer",
+    "chamfer_pct_radius",
+    "psnr",
+    "ssim",
+    "registered",
+    "ate_pct",
+    "depth_ms",
+    "wall_s",
+    "peak_mb",
+)
+
+
+class BenchCase(BaseModel):
+    name: str
+    shape: str
+    frames: int
+    width: int
+    height: int
+    seed: int
+
+
+class BenchPlan(BaseModel):
+    cases: list[BenchCase]
+    variants: list[str]
+    sets: list[str]  # applied to every run (e.g. shorter training in --quick)
+
+
+def plan(
+    quick: bool, cases: list[str] | None = None, variants: list[str] | None = None
+) -> BenchPlan:
+    """The bench's cases and variants; `cases` / `variants` keep only those names (a rerun of
+    one row after a change need not pay for the whole table)."""
+    full = _plan(quick)
+    if cases:
+        unknown = sorted(set(cases) - {c.name for c in full.cases})
+        if unknown:
+            names = ", ".join(c.name for c in full.cases)
+            raise ConfigError(f"unknown bench case {', '.join(unknown)}; cases: {names}")
+        full.cases = [c for c in full.cases if c.name in cases]
+    if variants:
+        unknown = sorted(set(variants) - set(full.variants))
+        if unknown:
+            names = ", ".join(full.variants)
+            raise ConfigError(f"unknown bench variant {', '.join(unknown)}; variants: {names}")
+        full.variants = [v for v in full.variants if v in variants]
+    return full
+
+
+def _plan(quick: bool) -> BenchPlan:
+    if quick:
+        return BenchPlan(
+            cases=[
+                BenchCase(name="colon_q", shape="colon", frames=24, width=160, height=128, seed=7)
+            ],
+            variants=["full", "no_prior", "plain"],
+            sets=["nerf.train.steps=400", "mesh.method=tsdf"],
+        )
+    return BenchPlan(
+        cases=[
+            BenchCase(name="colon", shape="colon", frames=60, width=320, height=256, seed=7),
+            BenchCase(name="cavity", shape="cavity", frames=60, width=320, height=256, seed=7),
+        ],
+        variants=list(VARIANTS),
+        sets=[],
+    )
+
+
+def run_bench(
+    pipe: Pipeline,
+    workdir: Path,
+    bench_plan: BenchPlan,
+    prepare_case,
+    console,
+    extra_sets: list[str] | None = None,
+    on_row: Callable[[list[dict]], None] | None = None,
+) -> list[dict]:
+    """Run every case x variant; return one row per run (the table's rows). A run that fails
+    is a row with its one-line error and whatever its fresh stages measured; the bench goes on.
+    `on_row` gets the rows so far after each run (to write results as they come)."""
+    from endopipe.commands.synth import SynthConfig, generate_case
+
+    rows: list[dict] = []
+    for case in bench_plan.cases:
+        src = workdir / "inputs" / case.name
+        if not (src / "intrinsics.json").is_file():
+            console.print(f"[bold]synthesising[/bold] {case.name}")
+            generate_case(
+                src,
+                SynthConfig(
+                    seed=case.seed,
+                    frames=case.frames,
+                    width=case.width,
+                    height=case.height,
+                    shape=case.shape,
+                ),
+            )
+        prior = "cavity" if case.shape == "cavity" else "tube"
+        for variant in bench_plan.variants:
+            sets = [*bench_plan.sets, f"centerline.prior={prior}", *VARIANTS[variant]]
+            sets += extra_sets or []
+            configs = load_config(pipe.stages, [], sets)
+            case_dir = prepare_case(src / "video.mp4", workdir / "runs", case.name, None)
+            console.print(f"[bold cyan]{case.name} / {variant}[/bold cyan]")
+            t0 = time.perf_counter()
+            error = None
+            try:
+                pipe.run(case_dir, configs, console=console, quiet=False)
+            except EndopipeError as e:
+                error = str(e).splitlines()[0] if str(e) else type(e).__name__
+                console.print(f"[red]{case.name} / {variant} failed:[/red] {error}")
+            elapsed = time.perf_counter() - t0
+            fresh = {p.stage for p in pipe.status(case_dir, configs) if p.fresh}
+            rows.append(collect_row(pipe, case_dir, case.name, variant, elapsed, fresh, error))
+            if on_row is not None:
+                on_row(rows)
+    return rows
+
+
+def collect_row(
+    pipe: Pipeline,
+    case_dir: Path,
+    case: str,
+    variant: str,
+    elapsed: float,
+    fresh: set[str] | None = None,
+    error: str | None = None,
+) -> dict:
+    """Metrics from the stage manifests (only stages in `fresh`, when given: after a failure
+    a later stage's folder still holds the previous variant's results); wall = every stage's
+    own time (cached ones included)."""
+    names = [s.name for s in pipe.stages if fresh is None or s.name in fresh]
+    manifests = {n: Manifest.load(case_dir / pipe.folder_name(n)) for n in names}
+    summary = {k: (m.summary if m else {}) for k, m in manifests.items()}
+    depth = summary.get("depth", {})
+    med = depth.get("median_scaled") or {}
+    mesh = summary.get("mesh", {})
+    poses = summary.get("poses", {})
+    return {
+        "case": case,
+        "variant": variant,
+        "error": error,
+        **{k: med.get(k) for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "delta1")},
+        "chamfer": mesh.get("chamfer"),
+        "chamfer_pct_radius": mesh.get("chamfer_pct_radius"),
+        "psnr": depth.get("heldout_psnr"),
+        "ssim": depth.get("heldout_ssim"),
+        "registered": poses.get("registered_fraction"),
+        "ate_pct": poses.get("ate_percent_of_path"),
+        "depth_ms": depth.get("ms_per_frame"),
+        "wall_s": sum(m.wall_s for m in manifests.values() if m),
+        "peak_mb": max((m.peak_rss_mb for m in manifests.values() if m), default=None),
+    }
+
+
+def write_csv(path: Path, rows: list[dict]) -> None:
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def markdown_table(rows: list[dict]) -> str:
+    """The paper's Table 1 shape, plus Chamfer, image metrics, timings and memory."""
+    head = (
+        "| case | variant | AbsRel | SqRel | RMSE | RMSElog | δ<1.25 | Chamfer | Chamfer %r "
+        "| PSNR | SSIM | registered | ATE % | depth ms | wall s | peak MB |"
+    )
+    lines = [head, "|" + "---|" * 16]
+    for r in rows:
+        cells = [r["case"], r["variant"] + (" (failed)" if r.get("error") else "")]
+        cells += [_fmt(r[k], 4) for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "delta1")]
+        cells += [_fmt(r["chamfer"], 3), _fmt(r["chamfer_pct_radius"], 2)]
+        cells += [_fmt(r["psnr"], 2), _fmt(r["ssim"], 3), _fmt(r["registered"], 2)]
+        cells += [_fmt(r["ate_pct"], 2), _fmt(r["depth_ms"], 0), _fmt(r["wall_s"], 0)]
+        cells += [_fmt(r["peak_mb"], 0)]
+        lines.append("| " + " | ".join(cells) + " |")
+    failed = [r for r in rows if r.get("error")]
+    if failed:
+        lines.append("")
+        lines += [f"- {r['case']} / {r['variant']} failed: {r['error']}" for r in failed]
+    return "\n".join(lines)
+
+
+def _fmt(value, digits: int) -> str:
+    if value is None:
+        return "–"
+    return f"{value:.{digits}f}"

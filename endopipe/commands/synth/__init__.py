@@ -1,0 +1,202 @@
+"""`endopipe synth`: synthetic endoscopy cases with exact ground truth (DESIGN §5 case folder).
+
+A seeded implicit anatomy (colon or cavity) is ray-cast exactly from a seeded camera path with a
+light at the camera; the case gets the video, lossless frames, intrinsics, z-depth, poses, mesh,
+specular masks and centre line. Units are millimetres throughout.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from endopipe.commands.synth.raycast import FrameGeometry, MeshGuide, StepBound, trace, trace_frame
+from endopipe.commands.synth.render import Lighting, calibrate_exposure, shade
+from endopipe.commands.synth.scene import CavityScene, ColonScene, Scene
+from endopipe.commands.synth.texture import MucosaTexture
+from endopipe.commands.synth.trajectory import cavity_poses, colon_poses
+from endopipe.commands.synth.writer import CaseWriter
+from endopipe.stages.camera import Camera
+
+__all__ = ["SynthConfig", "SynthSummary", "generate_case"]
+
+GUIDE_RAYS = 800_000  # above this many pixels in total, rays are guided by the wall's mesh
+
+
+class SynthConfig(BaseModel):
+    """What to generate; the same config always gives the same case, byte for byte."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    seed: int = Field(0, description="Seed of the anatomy, texture, camera path and sensor noise.")
+    frames: int = Field(60, ge=2, description="Number of frames (camera travels ~1 mm per frame).")
+    width: int = Field(320, ge=16, description="Image width in pixels (even, for yuv420p video).")
+    height: int = Field(256, ge=16, description="Image height in pixels (even).")
+    shape: Literal["colon", "cavity"] = Field(
+        "colon", description="colon: haustrated tube, camera advancing; cavity: stomach-like sac."
+    )
+    texture_contrast: float = Field(
+        1.0, ge=0.0, le=3.0, description="Scales all texture contrast (<1: harder for SfM)."
+    )
+    fov_deg: float = Field(90.0, gt=10.0, lt=170.0, description="Horizontal field of view, deg.")
+    noise_std: float = Field(
+        0.01, ge=0.0, le=0.5, description="Gaussian sensor noise std on 0..1 intensities."
+    )
+    specular: bool = Field(True, description="Add Blinn-Phong highlights of the camera's light.")
+
+    @field_validator("width", "height")
+    @classmethod
+    def _even(cls, v: int) -> int:
+        if v % 2:
+            raise ValueError("must be even (H.264 yuv420p)")
+        return v
+
+
+class SynthSummary(BaseModel):
+    """What was generated, for the CLI to print."""
+
+    out: str = Field(description="The case folder.")
+    frames: int = Field(description="Frames written.")
+    path_length_mm: float = Field(description="Length of the camera path (sum of frame steps).")
+    mean_radius_mm: float = Field(description="Mean lumen radius along gt/centerline.json.")
+    seconds: float = Field(description="Wall time of the generation.")
+
+
+def intrinsics_for(cfg: SynthConfig) -> Camera:
+    """Square-pixel pinhole with the principal point at the image centre (pixel-centre coords)."""
+    fx = 0.5 * cfg.width / np.tan(np.radians(cfg.fov_deg) / 2.0)
+    return Camera(
+        width=cfg.width,
+        height=cfg.height,
+        fx=fx,
+        fy=fx,
+        cx=(cfg.width - 1) / 2.0,
+        cy=(cfg.height - 1) / 2.0,
+    )
+
+
+def _streams(seed: int) -> dict[str, np.random.Generator]:
+    """Independent generators, so changing one part (e.g. texture) leaves the others alone."""
+    names = ("scene", "path", "texture", "bound")
+    seqs = np.random.SeedSequence(seed).spawn(len(names))
+    return {n: np.random.default_rng(s) for n, s in zip(names, seqs, strict=True)}
+
+
+def build_scene(cfg: SynthConfig, rng: dict[str, np.random.Generator]) -> tuple[Scene, np.ndarray]:
+    """The anatomy and the camera poses (N,4,4) moving through it."""
+    if cfg.shape == "colon":
+        scene = ColonScene(rng["scene"], z_end=cfg.frames * 1.3 + 5.0)
+        if scene.min_wall_radius() < scene.AXIS_CORE + 1.0:  # the tracer's bound relies on it
+            raise RuntimeError("synthetic colon: folds reach the axis core")
+        poses = colon_poses(scene, cfg.frames, rng["path"])
+    else:
+        scene = CavityScene(rng["scene"])
+        poses = cavity_poses(scene, cfg.frames, rng["path"])
+    clearance = scene.f_points(poses[:, :3, 3])
+    if clearance.max() > -2.0:
+        raise RuntimeError("synthetic camera path comes too close to the wall")
+    return scene, poses
+
+
+def centerline_radii(scene: Scene, bound: StepBound, hits: np.ndarray) -> tuple:
+    """Centre-axis points and the mean distance to the wall in each one's normal plane."""
+    cs = scene.cross_sections(hits)
+    ang = np.linspace(0.0, 2.0 * np.pi, 72, endpoint=False)
+    dirs = np.cos(ang)[None, :, None] * cs.u[:, None] + np.sin(ang)[None, :, None] * cs.v[:, None]
+    origins = np.repeat(cs.points, len(ang), axis=0)
+    t = trace(scene, bound, origins, dirs.reshape(-1, 3))[0].reshape(len(cs.points), len(ang))
+    return cs.points, np.nanmean(t, axis=1)
+
+
+@dataclass
+class Setup:
+    """Everything fixed for a whole sequence, before the first frame is rendered."""
+
+    scene: Scene
+    poses: np.ndarray
+    bound: StepBound
+    guide: MeshGuide | None
+    texture: MucosaTexture
+    intr: Camera
+    light: Lighting
+
+    def trace(self, i: int, intr: Camera | None = None) -> FrameGeometry:
+        return trace_frame(self.scene, self.bound, self.guide, intr or self.intr, self.poses[i])
+
+
+def prepare(cfg: SynthConfig) -> Setup:
+    """Scene, camera path, tracer bounds, texture and the sequence's fixed exposure."""
+    rng = _streams(cfg.seed)
+    scene, poses = build_scene(cfg, rng)
+    bound = StepBound(scene, rng["bound"])
+    big = cfg.frames * cfg.width * cfg.height > GUIDE_RAYS
+    guide = MeshGuide(scene, *scene.mesh()) if big else None
+    texture = MucosaTexture(rng["texture"], cfg.texture_contrast)
+    intr = intrinsics_for(cfg)
+    setup = Setup(scene, poses, bound, guide, texture, intr, Lighting(exposure=1.0))
+    # Exposure from quarter-resolution previews of three frames, then fixed for the sequence.
+    small = intr.scaled(max(cfg.width // 4, 8), max(cfg.height // 4, 8))
+    probes = [setup.trace(i, small) for i in sorted({0, cfg.frames // 2, cfg.frames - 1})]
+    setup.light = Lighting(exposure=calibrate_exposure(probes, texture), specular=cfg.specular)
+    return setup
+
+
+def _render_frames(
+    setup: Setup,
+    cfg: SynthConfig,
+    writer: CaseWriter,
+    progress: Callable[[int, int], None] | None,
+) -> tuple[np.ndarray, float]:
+    """Render and write every frame; returns the bounding box of all hits and the mean
+    fraction of specular pixels."""
+    lo, hi, spec_frac = [], [], []
+    for i in range(cfg.frames):
+        geom = setup.trace(i)
+        noise_rng = np.random.default_rng([cfg.seed, 7919, i])  # per frame: order-independent
+        rgb, spec = shade(geom, setup.texture, setup.light, cfg.noise_std, noise_rng)
+        writer.add_frame(rgb, geom.depth, spec)
+        lo.append(geom.points.min(0))
+        hi.append(geom.points.max(0))
+        spec_frac.append(float(spec.mean()))
+        if progress is not None:
+            progress(i + 1, cfg.frames)
+    return np.stack([np.min(lo, 0), np.max(hi, 0)]), float(np.mean(spec_frac))
+
+
+def generate_case(
+    out: Path, cfg: SynthConfig, progress: Callable[[int, int], None] | None = None
+) -> SynthSummary:
+    """Render a synthetic case into the folder `out`: replaced if it holds a previous synth
+    case, a FileExistsError if it is some other non-empty folder. `progress(done, total)` is
+    called after each frame."""
+    start = time.perf_counter()
+    writer = CaseWriter(out, intrinsics_for(cfg))  # refuses a foreign folder before any work
+    try:
+        setup = prepare(cfg)
+        extent, spec_frac = _render_frames(setup, cfg, writer, progress)
+        points, radius = centerline_radii(setup.scene, setup.bound, extent)
+        steps = np.linalg.norm(np.diff(setup.poses[:, :3, 3], axis=0), axis=1)
+        meta = {
+            "generator": "endopipe synth",
+            "config": cfg.model_dump(),
+            "exposure": setup.light.exposure,
+            "specular_fraction": spec_frac,
+            "camera_start": setup.poses[0][:3, 3].tolist(),
+        }
+        writer.finish(setup.poses, setup.scene.mesh(extent), (points, radius), meta)
+    except BaseException:
+        writer.abort()
+        raise
+    return SynthSummary(
+        out=str(out),
+        frames=cfg.frames,
+        path_length_mm=float(steps.sum()),
+        mean_radius_mm=float(np.mean(radius)),
+        seconds=time.perf_counter() - start,
+    )

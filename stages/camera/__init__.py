@@ -1,0 +1,42 @@
+"""The camera library: one camera type with its lens, one projection, one ray generator, poses.
+
+`model.Camera` (intrinsics + distortion), `projection` (pixels <-> rays <-> points), `transforms`
+(c2w poses, sim3 alignment, rotations through scipy). Everything that makes a ray or projects a
+point goes through here.
+"""
+
+from endopipe.stages.camera.model import Camera
+from endopipe.stages.camera.projection import (
+    backproject,
+    camera_rays,
+    image_directions,
+    pixel_directions,
+    pixel_grid,
+    project,
+    project_camera,
+)
+from endopipe.stages.camera.transforms import (
+    apply_sim3,
+    look_at,
+    matrix_to_quat_wxyz,
+    quat_wxyz_to_matrix,
+    rotation_angle_deg,
+    umeyama,
+)
+
+__all__ = [
+    "Camera",
+    "apply_sim3",
+    "backproject",
+    "camera_rays",
+    "image_directions",
+    "look_at",
+    "matrix_to_quat_wxyz",
+    "pixel_directions",
+    "pixel_grid",
+    "project",
+    "project_camera",
+    "quat_wxyz_to_matrix",
+    "rotation_angle_deg",
+    "umeyama",
+]

@@ -1,0 +1,452 @@
+"""Structure from motion with pycolmap: features, matches, incremental mapping, merging, and
+triangulation from known poses.
+
+Small functions over a scratch folder (database + CLAHE images), as in pycolmap's examples.
+Every pycolmap failure on bad input becomes one StageFailed line, never a traceback.
+Tuned for endoscopy (measured on C3VD): CLAHE-equalised grey images, a low SIFT peak threshold
+with domain-size pooling, sequential matching and a mapper that accepts small baselines.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import cv2  # must precede pycolmap (see endopipe.stages/__init__.py)
+import numpy as np
+import pycolmap
+
+from endopipe.pipeline.errors import StageFailed
+from endopipe.stages.camera import Camera
+from endopipe.stages.io.colmap_model import CameraModel, reconstruction_points
+
+if TYPE_CHECKING:
+    from endopipe.stages.ingest.stage import IngestView
+    from endopipe.stages.poses.stage import PosesConfig
+
+#: ctx.progress: (description, total) -> context manager yielding advance(n=1, info=None)
+ProgressFactory = Callable[[str, int | None], AbstractContextManager[Callable[..., None]]]
+
+
+@dataclass
+class SfmResult:
+    """The reconstruction kept (largest model, after merging) and what happened on the way."""
+
+    reconstruction: pycolmap.Reconstruction | None  # None when no model was found
+    camera: CameraModel | None
+    #: endopipe frame index -> camera-to-world 4x4 (OpenCV), registered frames only
+    c2w: dict[int, np.ndarray]
+    model_sizes: list[int]
+    merge: str
+    merged_frames: int
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def run_sfm(
+    ingest: IngestView,
+    scratch: Path,
+    cfg: PosesConfig,
+    intrinsics: Camera | None,
+    progress: ProgressFactory,
+    log: Callable[[str], None] = lambda _: None,
+) -> SfmResult:
+    """Features -> matches -> incremental mapping -> merge the other models into the largest."""
+    scratch.mkdir(parents=True, exist_ok=True)
+    database = scratch / "database.db"
+    names = [Path(f.file).name for f in ingest.frames]
+    index_of = {name: f.index for name, f in zip(names, ingest.frames, strict=True)}
+    timings: dict[str, float] = {}
+    with colmap_logging(cfg.colmap_log), progress("features + matching", 2) as advance:
+        t = time.perf_counter()
+        image_dir, mask_dir = prepare_images(ingest, names, scratch, cfg)
+        extract(database, image_dir, mask_dir, names, cfg, intrinsics)
+        timings["features_s"] = time.perf_counter() - t
+        advance(info=f"{len(names)} frames")
+        t = time.perf_counter()
+        match(database, cfg, len(names))
+        timings["matching_s"] = time.perf_counter() - t
+        advance(info=f"{num_verified_pairs(database)} verified pairs")
+    t = time.perf_counter()
+    with colmap_logging(cfg.colmap_log):
+        models = map_incremental(
+            database, ingest.folder / "frames", cfg, intrinsics, len(names), progress
+        )
+    timings["mapping_s"] = time.perf_counter() - t
+    if not models:  # no initial pair: the quality gate reports 0 registered frames
+        log("COLMAP found no initial image pair (no model)")
+        return SfmResult(None, None, {}, [], "no model to merge", 0, timings)
+    models.sort(key=lambda r: r.num_reg_images(), reverse=True)
+    sizes = [r.num_reg_images() for r in models]
+    largest = models[0]
+    merge, merged = "nothing to merge: every frame is in one model", 0
+    if largest.num_reg_images() < len(names):
+        if cfg.merge_models:
+            t = time.perf_counter()
+            with colmap_logging(cfg.colmap_log):
+                extended = continue_mapping(
+                    database,
+                    largest,
+                    ingest.folder / "frames",
+                    scratch,
+                    cfg,
+                    intrinsics,
+                    len(names),
+                    progress,
+                )
+            timings["merge_s"] = time.perf_counter() - t
+            merged = max(0, extended.num_reg_images() - largest.num_reg_images())
+            others = f" from {len(models) - 1} other model(s)" if len(models) > 1 else ""
+            merge = (
+                f"continued the largest model ({largest.num_reg_images()} frames) with relaxed "
+                f"registration: +{merged} frame(s){others}"
+            )
+            if merged > 0:
+                largest = extended
+        else:
+            merge = "not tried (poses.merge_models=false); kept the largest model"
+    log(f"models {sizes}; {merge}")
+    camera = next(iter(largest.cameras.values()))
+    cam = CameraModel(
+        camera.model.name, camera.width, camera.height, list(map(float, camera.params))
+    )
+    c2w = {}
+    for image in largest.images.values():
+        if image.has_pose and image.name in index_of:
+            w2c = np.eye(4)
+            w2c[:3, :4] = image.cam_from_world().matrix()
+            c2w[index_of[image.name]] = np.linalg.inv(w2c)
+    return SfmResult(largest, cam, c2w, sizes, merge, merged, timings)
+
+
+def triangulate_known(
+    ingest: IngestView,
+    scratch: Path,
+    cfg: PosesConfig,
+    camera: CameraModel,
+    c2w: dict[int, np.ndarray],
+    progress: ProgressFactory,
+    log: Callable[[str], None] = lambda _: None,
+) -> tuple[pycolmap.Reconstruction, np.ndarray, np.ndarray]:
+    """Sparse points from fixed poses and a fixed camera (poses.source=gt|file).
+
+    The same features and matches as SfM, then COLMAP's point triangulator with the poses held:
+    the centerline stage measures the lumen radius from these points, as it does from SfM's.
+    Returns the model (poses, camera, tracks), xyz (N,3) and rgb (N,3 uint8), in c2w's frame.
+    """
+    scratch.mkdir(parents=True, exist_ok=True)
+    database = scratch / "database.db"
+    names = [Path(f.file).name for f in ingest.frames]
+    frame_of = {name: f.index for name, f in zip(names, ingest.frames, strict=True)}
+    with colmap_logging(cfg.colmap_log), progress("triangulation from known poses", 3) as advance:
+        t = time.perf_counter()
+        image_dir, mask_dir = prepare_images(ingest, names, scratch, cfg)
+        extract(database, image_dir, mask_dir, names, cfg, None, camera=camera)
+        advance(info=f"{len(names)} frames")
+        match(database, cfg, len(names))
+        advance(info=f"{num_verified_pairs(database)} verified pairs")
+        with pycolmap.Database.open(database) as db:
+            cameras, images = db.read_all_cameras(), db.read_all_images()
+        rec = pycolmap.Reconstruction()
+        for cam in cameras:  # one (CameraMode.SINGLE): the known camera, with the database's id
+            rec.add_camera_with_trivial_rig(cam)
+        for db_image in images:  # the database's ids and names; unposed frames stay unregistered
+            image = pycolmap.Image(
+                name=db_image.name, camera_id=db_image.camera_id, image_id=db_image.image_id
+            )
+            pose = c2w.get(frame_of.get(db_image.name, -1))
+            if pose is None:
+                rec.add_image_with_trivial_frame(image)
+            else:
+                rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(np.linalg.inv(pose)[:3]))
+        options = mapper_options(cfg, None, ingest.folder / "frames")
+        options.ba_refine_focal_length = False  # the camera is known: only the points move
+        options.ba_refine_principal_point = False
+        options.ba_refine_extra_params = False
+        pycolmap.set_random_seed(cfg.seed)
+        with colmap_errors("triangulation"):
+            rec = pycolmap.triangulate_points(
+                rec,
+                database,
+                ingest.folder / "frames",  # colours from the RGB frames
+                scratch / "triangulated",
+                clear_points=True,
+                options=options,
+                refine_intrinsics=False,
+            )
+        xyz, rgb = reconstruction_points(rec)
+        advance(info=f"{len(xyz)} points")
+    log(
+        f"triangulated {len(xyz)} points from {len(c2w)} known poses in "
+        f"{time.perf_counter() - t:.1f} s"
+    )
+    return rec, xyz, rgb
+
+
+def prepare_images(
+    ingest: IngestView, names: list[str], scratch: Path, cfg: PosesConfig
+) -> tuple[Path, Path]:
+    """Grey (CLAHE-equalised) images for SIFT and COLMAP-named masks (`<image>.png`, 0 = ignore)."""
+    image_dir, mask_dir = scratch / "images", scratch / "masks"
+    image_dir.mkdir(exist_ok=True)
+    mask_dir.mkdir(exist_ok=True)
+    clahe = cv2.createCLAHE(cfg.clahe_clip_limit, (cfg.clahe_tiles, cfg.clahe_tiles))
+    for i, name in enumerate(names):
+        grey = cv2.cvtColor(ingest.image(i), cv2.COLOR_RGB2GRAY)
+        if cfg.clahe:
+            grey = clahe.apply(grey)
+        mask = feature_mask(ingest, i, cfg.mask_grow_px)
+        cv2.imwrite(str(image_dir / name), grey)
+        cv2.imwrite(
+            str(mask_dir / f"{name}.png"), mask if cfg.use_masks else np.full_like(mask, 255)
+        )
+    return image_dir, mask_dir
+
+
+def feature_mask(ingest: IngestView, i: int, grow_px: int) -> np.ndarray:
+    """The ingest mask with its specular holes grown by `grow_px`: keypoints on the glow around
+    a highlight move with the light, not with the tissue (the scope border is not grown)."""
+    mask = ingest.mask(i)
+    if grow_px <= 0:
+        return mask
+    fov = ingest.fov()
+    holes = ((mask == 0) & (fov > 0)).astype(np.uint8)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow_px + 1, 2 * grow_px + 1))
+    grown = cv2.dilate(holes, kernel) > 0
+    return np.where(grown, 0, mask).astype(np.uint8)
+
+
+def extract(
+    database: Path,
+    image_dir: Path,
+    mask_dir: Path,
+    names: list[str],
+    cfg: PosesConfig,
+    intrinsics: Camera | None,
+    camera: CameraModel | None = None,
+) -> None:
+    """SIFT on every image, one shared camera (PINHOLE, or OPENCV with `dist`, when known).
+
+    `camera` gives that camera as it is (a pose file's own model may carry other distortion).
+    """
+    reader = pycolmap.ImageReaderOptions()
+    reader.mask_path = str(mask_dir)
+    known = camera or (CameraModel.from_intrinsics(intrinsics) if intrinsics is not None else None)
+    if known is not None:
+        reader.camera_model = known.model
+        reader.camera_params = ",".join(f"{v:.17g}" for v in known.params)
+    else:
+        reader.camera_model = cfg.camera_model
+    options = pycolmap.FeatureExtractionOptions()
+    options.num_threads = -1
+    options.use_gpu = False
+    options.max_image_size = 100_000  # never resize: ingest chose the working resolution
+    options.sift.max_num_features = cfg.sift_max_features
+    options.sift.peak_threshold = cfg.sift_peak_threshold
+    options.sift.domain_size_pooling = cfg.sift_domain_size_pooling
+    pycolmap.set_random_seed(cfg.seed)
+    with colmap_errors("feature extraction"):
+        # import first: ids then follow frame order (the parallel extractor writes new images in
+        # completion order, which would make ids, pairs and so the poses vary between runs)
+        pycolmap.Database.open(database).close()
+        pycolmap.import_images(
+            database,
+            image_dir,
+            camera_mode=pycolmap.CameraMode.SINGLE,
+            image_names=names,
+            options=reader,
+        )
+        pycolmap.extract_features(
+            database,
+            image_dir,
+            image_names=names,
+            camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=reader,
+            extraction_options=options,
+            device=pycolmap.Device.cpu,
+        )
+    with pycolmap.Database.open(database) as db:
+        if db.num_images() < len(names):
+            raise StageFailed(
+                f"COLMAP read only {db.num_images()} of {len(names)} frames for feature "
+                "extraction; check the frames in 01_ingest (re-run with --from ingest)"
+            )
+
+
+def match(database: Path, cfg: PosesConfig, n_images: int) -> None:
+    """Sequential (video order) or exhaustive matching with seeded geometric verification."""
+    matching = pycolmap.FeatureMatchingOptions()
+    # Geometric verification draws from per-thread random states: with several threads the
+    # verified matches (and so the poses) can differ between two runs.
+    matching.num_threads = cfg.num_threads
+    matching.use_gpu = False
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = cfg.seed
+    pycolmap.set_random_seed(cfg.seed)
+    with colmap_errors("feature matching"):
+        if cfg.matcher == "exhaustive":
+            pycolmap.match_exhaustive(
+                database,
+                matching_options=matching,
+                verification_options=verification,
+                device=pycolmap.Device.cpu,
+            )
+        else:
+            pairing = pycolmap.SequentialPairingOptions()
+            pairing.overlap = min(cfg.sequential_overlap, max(1, n_images - 1))
+            pairing.quadratic_overlap = cfg.quadratic_overlap
+            pairing.num_threads = cfg.num_threads
+            pycolmap.match_sequential(
+                database,
+                matching_options=matching,
+                pairing_options=pairing,
+                verification_options=verification,
+                device=pycolmap.Device.cpu,
+            )
+
+
+def num_verified_pairs(database: Path) -> int:
+    with pycolmap.Database.open(database) as db:
+        return int(db.num_verified_image_pairs())
+
+
+def mapper_options(
+    cfg: PosesConfig, intrinsics: Camera | None, image_path: Path
+) -> pycolmap.IncrementalPipelineOptions:
+    """The seeded incremental mapper; intrinsics stay fixed when they are known."""
+    options = pycolmap.IncrementalPipelineOptions()
+    options.image_path = str(image_path)  # colours of the sparse points come from the RGB frames
+    options.num_threads = cfg.num_threads
+    options.random_seed = cfg.seed
+    options.mapper.num_threads = cfg.num_threads
+    options.mapper.random_seed = cfg.seed
+    options.triangulation.random_seed = cfg.seed
+    options.min_model_size = cfg.min_model_size
+    options.mapper.init_min_num_inliers = cfg.init_min_num_inliers
+    options.mapper.abs_pose_min_num_inliers = cfg.abs_pose_min_num_inliers
+    options.mapper.init_min_tri_angle = cfg.init_min_tri_angle
+    refine = intrinsics is None or cfg.refine_known_intrinsics
+    options.ba_refine_focal_length = refine
+    options.ba_refine_principal_point = refine and cfg.refine_principal_point
+    options.ba_refine_extra_params = refine
+    options.mapper.abs_pose_refine_focal_length = refine
+    options.mapper.abs_pose_refine_extra_params = refine
+    return options
+
+
+def map_incremental(
+    database: Path,
+    image_path: Path,
+    cfg: PosesConfig,
+    intrinsics: Camera | None,
+    n_images: int,
+    progress: ProgressFactory,
+) -> list[pycolmap.Reconstruction]:
+    """Incremental mapping; returns every model found (possibly several, possibly none)."""
+    options = mapper_options(cfg, intrinsics, image_path)
+    manager = pycolmap.ReconstructionManager()
+    _run_pipeline(options, database, manager, n_images, progress, "mapping")
+    return [manager.get(i) for i in range(manager.size()) if manager.get(i).num_reg_images() > 0]
+
+
+def continue_mapping(
+    database: Path,
+    model: pycolmap.Reconstruction,
+    image_path: Path,
+    scratch: Path,
+    cfg: PosesConfig,
+    intrinsics: Camera | None,
+    n_images: int,
+    progress: ProgressFactory,
+) -> pycolmap.Reconstruction:
+    """Re-run the mapper seeded with `model`, with relaxed registration, to add the rest.
+
+    Frames of the other models share matches with the largest one in the database, so those
+    the relaxed absolute-pose step can place join it; the others stay unregistered.
+    """
+    seed_dir = scratch / "largest"
+    if seed_dir.exists():
+        shutil.rmtree(seed_dir)
+    seed_dir.mkdir()
+    model.write(seed_dir)
+    manager = pycolmap.ReconstructionManager()
+    manager.read(seed_dir)
+    options = mapper_options(cfg, intrinsics, image_path)
+    options.multiple_models = False
+    options.min_num_matches = max(6, options.min_num_matches // 2)
+    options.mapper.abs_pose_min_num_inliers = max(8, cfg.abs_pose_min_num_inliers // 2)
+    options.mapper.abs_pose_min_inlier_ratio = 0.1
+    options.mapper.max_reg_trials = 6
+    options.mapper.abs_pose_max_error = 16.0
+    _run_pipeline(
+        options, database, manager, n_images, progress, "merging", start=model.num_reg_images()
+    )
+    return manager.get(0)
+
+
+def _run_pipeline(
+    options: pycolmap.IncrementalPipelineOptions,
+    database: Path,
+    manager: pycolmap.ReconstructionManager,
+    n_images: int,
+    progress: ProgressFactory,
+    label: str,
+    start: int = 0,
+) -> None:
+    """Run an IncrementalPipeline; a registration callback feeds the progress bar."""
+    # COLMAP's global PRNG is per thread and also drawn from during extraction and matching:
+    # re-seed right before mapping so the mapper's choices do not depend on what ran before
+    pycolmap.set_random_seed(options.random_seed)
+    with colmap_errors(label), pycolmap.Database.open(database) as db:
+        pipeline = pycolmap.IncrementalPipeline(options, db, manager)
+        with progress(label, n_images) as advance:
+            state = {"shown": 0}
+            if start:
+                advance(start, info="seed model")
+                state["shown"] = start
+
+            def on_image() -> None:
+                if manager.size() == 0:
+                    return
+                idx = manager.size() - 1
+                reg = manager.get(idx).num_reg_images()
+                if reg > state["shown"]:
+                    advance(reg - state["shown"], info=f"model {idx + 1}: {reg} frames")
+                    state["shown"] = reg
+                else:
+                    advance(0, info=f"model {idx + 1}: {reg} frames")
+
+            for cb in (
+                pycolmap.IncrementalPipelineCallback.INITIAL_IMAGE_PAIR_REG_CALLBACK,
+                pycolmap.IncrementalPipelineCallback.NEXT_IMAGE_REG_CALLBACK,
+            ):
+                pipeline.add_callback(cb.value, on_image)
+            pipeline.run()
+
+
+@contextmanager
+def colmap_errors(step: str) -> Iterator[None]:
+    """pycolmap's exceptions on bad input as one StageFailed line."""
+    try:
+        yield
+    except (RuntimeError, ValueError, OSError) as e:
+        text = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
+        raise StageFailed(
+            f"COLMAP {step} failed: {text[:200]}; check the frames in 01_ingest or try "
+            "--set poses.source=file"
+        ) from None
+
+
+@contextmanager
+def colmap_logging(verbose: bool) -> Iterator[None]:
+    """COLMAP logs every step to stderr; keep only errors unless asked."""
+    before = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = 0 if verbose else 2
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = before

@@ -1,0 +1,150 @@
+"""`02_poses/cameras.json` (DESIGN §3 file contract) and the typed view downstream stages use."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from pydantic import BaseModel, Field
+
+from endopipe.stages.camera import Camera
+
+
+class FramePose(BaseModel):
+    index: int
+    registered: bool
+    c2w: list[list[float]] | None = None
+
+
+class CamerasFile(BaseModel):
+    """One shared pinhole camera and a camera-to-world pose per frame (OpenCV convention)."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    model: str = "PINHOLE"
+    params: list[float] = Field(
+        default_factory=list, description="COLMAP camera params as estimated."
+    )
+    metric: bool = False
+    units: str = "colmap"
+    source: str = "colmap"
+    frames: list[FramePose]
+
+    def intrinsics(self) -> Camera:
+        return Camera(
+            width=self.width, height=self.height, fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy
+        )
+
+    @classmethod
+    def build(
+        cls,
+        intrinsics: Camera,
+        poses: dict[int, np.ndarray],
+        n_frames: int,
+        *,
+        model: str = "PINHOLE",
+        params: list[float] | None = None,
+        metric: bool,
+        source: str,
+    ) -> CamerasFile:
+        return cls(
+            width=intrinsics.width,
+            height=intrinsics.height,
+            fx=intrinsics.fx,
+            fy=intrinsics.fy,
+            cx=intrinsics.cx,
+            cy=intrinsics.cy,
+            model=model,
+            params=params or [],
+            metric=metric,
+            units="mm" if metric else "colmap",
+            source=source,
+            frames=[
+                FramePose(
+                    index=i,
+                    registered=i in poses,
+                    c2w=np.asarray(poses[i]).tolist() if i in poses else None,
+                )
+                for i in range(n_frames)
+            ],
+        )
+
+
+@dataclass
+class SparseObservations:
+    """Every image observation of a sparse SfM point: which frame saw it, where (OpenCV pixel
+    convention, the top-left pixel's centre at (0, 0)), the point, its track length and mean
+    reprojection error (px). Arrays of one length N."""
+
+    frame: np.ndarray  # (N,) endopipe frame index
+    uv: np.ndarray  # (N, 2)
+    xyz: np.ndarray  # (N, 3) world, the cameras.json frame
+    track: np.ndarray  # (N,) images that see the point
+    error: np.ndarray  # (N,) px
+
+
+class PosesView:
+    """Typed access to 02_poses: intrinsics, registered frames' c2w, sparse points."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.file = CamerasFile.model_validate_json((folder / "cameras.json").read_text())
+        self.intrinsics = self.file.intrinsics()
+        self.metric = self.file.metric
+        self.c2w: dict[int, np.ndarray] = {
+            f.index: np.array(f.c2w, dtype=np.float64) for f in self.file.frames if f.registered
+        }
+
+    @property
+    def registered(self) -> list[int]:
+        return sorted(self.c2w)
+
+    def centres(self) -> np.ndarray:
+        """Camera centres of the registered frames, in frame order (Nx3)."""
+        return np.array([self.c2w[i][:3, 3] for i in self.registered]).reshape(-1, 3)
+
+    def points(self) -> np.ndarray:
+        """Sparse 3D points (Nx3) from points.ply; empty when the source gave none."""
+        path = self.folder / "points.ply"
+        if not path.is_file():
+            return np.zeros((0, 3))
+        import trimesh
+
+        cloud = trimesh.load(path, process=False)
+        return np.asarray(getattr(cloud, "vertices", np.zeros((0, 3))), dtype=np.float64)
+
+    def observations(self, index_of: dict[str, int]) -> SparseObservations | None:
+        """The sparse model's 2D-3D observations (sparse/, same world frame as cameras.json);
+        `index_of` maps an image file name to its frame index. None without a model or
+        tracks (e.g. poses from a transforms.json)."""
+        folder = self.folder / "sparse"
+        if not (folder / "points3D.txt").is_file() and not (folder / "points3D.bin").is_file():
+            return None
+        import pycolmap  # cv2 is already imported through the `endopipe.stages` package
+
+        rec = pycolmap.Reconstruction(str(folder))
+        rows: list[tuple] = []
+        for img in rec.images.values():
+            idx = index_of.get(Path(img.name).name)
+            if idx is None or idx not in self.c2w:
+                continue
+            for p2 in img.points2D:
+                if p2.has_point3D():
+                    pt = rec.points3D[p2.point3D_id]
+                    u, v = p2.xy
+                    rows.append((idx, u - 0.5, v - 0.5, *pt.xyz, pt.track.length(), pt.error))
+        if not rows:
+            return None
+        a = np.array(rows, dtype=np.float64)
+        return SparseObservations(
+            frame=a[:, 0].astype(np.int64),
+            uv=a[:, 1:3],
+            xyz=a[:, 3:6],
+            track=a[:, 6],
+            error=a[:, 7],
+        )
