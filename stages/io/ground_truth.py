@@ -14,6 +14,7 @@ it as `gt_kind`.
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Literal, Protocol, runtime_checkable
 
@@ -53,6 +54,29 @@ def open_ground_truth(gt_dir: Path | str) -> GroundTruthSource:
     if name is None:
         raise ValueError(f"no ground truth that endopipe can read in {gt_dir}")
     return READERS[name].ground_truth(gt_dir)
+
+
+class FrameRef(Protocol):
+    """What the frame -> truth mapping needs of a frame (01_ingest's frames.json entries)."""
+
+    index: int  # endopipe's frame number
+    source_index: int  # the frame's position in the input = the ground truth's file number
+
+
+def poses_by_frame(
+    gt: GroundTruthSource | None, frames: Iterable[FrameRef]
+) -> dict[int, np.ndarray] | None:
+    """The frame -> truth mapping for poses, written once: GT c2w per endopipe frame index
+    (None when there are no GT poses)."""
+    if gt is None or not gt.has_poses():
+        return None
+    poses = gt.poses()
+    return {f.index: poses[f.source_index] for f in frames if f.source_index < len(poses)}
+
+
+def depth_of_frame(gt: GroundTruthSource | None, frame: FrameRef) -> np.ndarray | None:
+    """The frame -> truth mapping for depth: GT z-depth (mm, 0 = invalid) of one frame."""
+    return None if gt is None else gt.depth(frame.source_index)
 
 
 class GroundTruth:
