@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 TORCH_SPEC ?= torch==2.13.0
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench lint format clean-venv
+.PHONY: demo test imports bench lint format clean-venv
 
 $(STAMP): pyproject.toml
 	bash scripts/system-deps.sh
@@ -22,7 +22,17 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
+	$(MAKE) --no-print-directory imports
 	$(VENV)/bin/pytest
+
+# The import contracts of pyproject.toml. grimp walks the package's folder, and the repository keeps
+# pipeline/ and stages/ beside endopipe/, so lint-imports reads a symlink tree with the installed
+# layout (endopipe/{pipeline,stages} -> pipeline/, stages/), from outside the repository.
+imports: $(STAMP)
+	@tree=$$(mktemp -d) && trap 'rm -rf "$$tree"' EXIT && mkdir "$$tree/endopipe" && \
+	ln -s "$(CURDIR)"/endopipe/* "$(CURDIR)/pipeline" "$(CURDIR)/stages" "$$tree/endopipe/" && \
+	cd "$$tree" && PYTHONPATH="$$tree" "$(CURDIR)/$(VENV)/bin/lint-imports" \
+		--config "$(CURDIR)/pyproject.toml" --no-cache
 
 bench: $(STAMP)
 	$(VENV)/bin/endopipe bench

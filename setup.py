@@ -10,4 +10,11 @@ packages = [
     for name, folder in ROOTS.items()
     for sub in ["", *find_packages(folder)]
 ]
-setup(package_dir=ROOTS, packages=packages, package_data={"endopipe": ["configs/*.yaml"]})
+setup(
+    package_dir=ROOTS,
+    packages=packages,
+    package_data={
+        "endopipe": ["configs/*.yaml"],
+        "endopipe.stages.report": ["templates/*.j2", "templates/*.css"],
+    },
+)

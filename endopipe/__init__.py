@@ -1,8 +1,9 @@
 """endopipe: monocular endoscopic video to poses, dense depth, a lumen mesh and a report.
 
-The distribution owns this one import name. Its layers, lowest first (import-linter checks them):
-`endopipe.pipeline` (the engine, no endoscopy) < `endopipe.stages` (libraries, then one folder
-per stage in DAG order) < `endopipe.commands` and `endopipe.cli` (what the user runs).
+The distribution owns this one import name. Its layers, lowest first (import-linter checks them,
+`make imports`): `endopipe.pipeline` (the engine, no endoscopy) < `endopipe.stages` (libraries,
+then one folder per stage in DAG order) < `endopipe.commands` (export, bench, synth, batch) <
+`endopipe.cli` (the composition root: the DAG and the typer commands).
 In the repository, `pipeline/` and `stages/` are mapped into this package by setuptools.
 """
 

@@ -17,9 +17,10 @@ from rich.console import Console
 from rich.table import Table
 
 import endopipe.stages  # noqa: F401  (imports cv2 before anything can import pycolmap)
+from endopipe.commands.batch.case import process_case
+from endopipe.commands.batch.rows import CaseRow, CaseTask
 from endopipe.pipeline.config import default_yaml, describe_fields, load_config
 from endopipe.pipeline.errors import EndopipeError
-from endopipe.pipeline.executors import CaseRow, CaseTask
 from endopipe.pipeline.runner import Pipeline, RunRecord, ensure_writable
 from endopipe.pipeline.stage import CaseInfo, Stage, write_json
 
@@ -222,7 +223,10 @@ def export(
     from endopipe.commands.export import export_case
 
     case_dir = resolve_case(case, workdir)
-    result = export_case(case_dir, format_, out_dir, symlink=symlink, endonerf_axes=endonerf_axes)
+    folders = build_pipeline().folders(case_dir)
+    result = export_case(
+        case_dir, format_, out_dir, folders=folders, symlink=symlink, endonerf_axes=endonerf_axes
+    )
     out.print(f"exported {result.frames} frame(s) as {result.format} to {result.out}")
     for note in result.notes:
         out.print(f"  {note}", markup=False, highlight=False)
@@ -360,114 +364,9 @@ def _has_preset(name: str) -> bool:
 # ---------------------------------------------------------------- endopipe batch
 
 
-def process_case(task: CaseTask) -> CaseRow:
-    """One case of `endopipe batch`, in whatever process (or cluster job) the executor gives it.
-
-    Top-level and picklable; it never raises: a failure becomes the row's one-line reason.
-    With `task.check_only` it changes nothing and only says whether every stage is already
-    fresh (status "ok"), the input cannot be used ("failed"), or something would run
-    ("pending").
-    """
-    from endopipe.pipeline.cache import Manifest
-    from endopipe.pipeline.executors import CaseRow, limit_threads, numeric_leaves, one_line
-    from endopipe.stages.io.sources import open_input
-
-    if task.threads:
-        limit_threads(task.threads)
-    t0, started = time.perf_counter(), time.time()
-    row = CaseRow(case=task.name, status="failed", reader=task.reader, input=task.input)
-    workdir, path = Path(task.workdir), Path(task.input)
-    case_dir = workdir / task.name
-    try:
-        pipe = build_pipeline()  # imports the stages: not counted in the case's wall time
-        t0, started = time.perf_counter(), time.time()
-        configs = {
-            s.name: s.Config.model_validate(task.configs.get(s.name, {})) for s in pipe.stages
-        }
-        selected = [s.name for s in pipe.selection(task.until)]
-        source = open_input(path, None, format=task.reader)
-        gt = source.ground_truth()
-        row.gt_kind = gt.kind if gt is not None else ""
-        if task.check_only:
-            if not _all_fresh(pipe, case_dir, path, source, configs, task.until):
-                row.status = "pending"
-                return row
-            row.stages_cached = selected
-        else:
-            case_dir = prepare_case(path, workdir, task.name, None, task.reader)
-            record = pipe.run(case_dir, configs, until=task.until, quiet=True)
-            row.stages_ran = [s.stage for s in record.stages if s.status == "ran"]
-            row.stages_cached = [s.stage for s in record.stages if s.status == "cached"]
-        for name in selected:
-            manifest = Manifest.load(case_dir / pipe.folder_name(name))
-            if manifest is None:
-                continue
-            row.compute_s += manifest.wall_s
-            row.peak_rss_mb = max(row.peak_rss_mb, manifest.peak_rss_mb)
-            for key, value in numeric_leaves(manifest.summary).items():
-                row.metrics[f"{name}.{key}"] = value
-        report = next(iter(sorted(case_dir.glob("*_report/report.html"))), None)
-        row.report = report.relative_to(workdir).as_posix() if report else None
-        row.status = "ok"
-    except EndopipeError as e:
-        row.reason = one_line(e)
-        _note_failed_stage(row, case_dir, started)
-    except Exception as e:  # an endopipe bug: one line in the row, the traceback in a log
-        if task.check_only:  # let the real run meet it and report it
-            row.status = "pending"
-            return row
-        row.reason = f"internal error: {type(e).__name__}: {one_line(e)}"
-        log = workdir / ".batch" / "logs" / f"{task.name}.log"
-        try:
-            log.parent.mkdir(parents=True, exist_ok=True)
-            log.write_text(traceback.format_exc())
-            row.reason += f" (traceback in {log})"
-        except OSError:
-            pass
-        _note_failed_stage(row, case_dir, started)
-    row.wall_s = time.perf_counter() - t0
-    return row
-
-
-def _all_fresh(
-    pipe: Pipeline, case_dir: Path, path: Path, source, configs: dict, until: str | None
-) -> bool:
-    if not (case_dir / "case.json").is_file():
-        return False
-    info = CaseInfo.load(case_dir)
-    if info.input != str(path.resolve()) or info.input_digest != source.digest():
-        return False
-    return all(p.fresh for p in pipe.plan(case_dir, info, configs, until))
-
-
-def _note_failed_stage(row: CaseRow, case_dir: Path, started: float) -> None:
-    """Which stages ran before the failure, and which failed: from the run's record."""
-    runs = case_dir / "runs"
-    if not runs.is_dir():
-        return
-    recent = sorted(p for p in runs.glob("*.json") if p.stat().st_mtime >= started - 0.05)
-    if not recent:
-        return
-    record = RunRecord.model_validate_json(recent[-1].read_text())
-    row.stages_ran = [s.stage for s in record.stages if s.status == "ran"]
-    row.stages_cached = [s.stage for s in record.stages if s.status == "cached"]
-    row.failed_stage = next((s.stage for s in record.stages if s.status == "failed"), None)
-
-
-def _print_case_row(row: CaseRow) -> None:
-    from rich.markup import escape
-
-    if row.status == "ok":
-        ran = "+".join(row.stages_ran) or "nothing (all cached)"
-        gt = f"  [yellow]{row.gt_kind} ground truth[/yellow]" if row.gt_kind == "pseudo" else ""
-        console.print(
-            f"[green]✓[/green] {escape(row.case)}  [dim]{row.reader}[/dim]  ran {ran}, "
-            f"{row.wall_s:.1f} s{gt}"
-        )
-    else:
-        console.print(
-            f"[red]✗[/red] {escape(row.case)}  [dim]{row.reader}[/dim]  {escape(row.reason)}"
-        )
+def batch_case(task: CaseTask) -> CaseRow:
+    """One case of `endopipe batch` with this DAG. Top-level, so executors pickle it by name."""
+    return process_case(task, build_pipeline, prepare_case)
 
 
 @app.command()
@@ -510,77 +409,25 @@ def batch(
     dry_run: Annotated[bool, typer.Option(help="List the cases and readers only.")] = False,
 ) -> None:
     """Run every case under FOLDER through the pipeline; write batch.csv and batch.html."""
-    from rich.markup import escape
+    from endopipe.commands.batch.command import run_batch
 
-    from endopipe.pipeline.executors import (
-        EXECUTORS,
-        ClusterConfig,
-        load_cluster_config,
-        run_cases,
-        write_csv,
-        write_html,
-    )
-    from endopipe.stages.io.datasets import find_cases
-
-    pipe = build_pipeline()
-    if until is not None:
-        pipe.index(until)
-    if executor not in EXECUTORS:
-        raise EndopipeError(f"unknown executor '{executor}'; executors: {', '.join(EXECUTORS)}")
-    configs = load_config(pipe.stages, config or [], set_ or [])
-    cluster = load_cluster_config(cluster_config) if executor != "local" else ClusterConfig()
-    ensure_writable(workdir)
-    wd = workdir.resolve()
-    cases = find_cases(folder, format_, skip=(wd,))
-    if not cases:
-        raise EndopipeError(
-            f"no cases found in {folder}: expected videos, image folders, endopipe case folders "
-            "or Hamlyn / C3VD / SimCol3D sequences (or pass --format)"
-        )
-    table = Table(title=f"{len(cases)} case(s) in {folder}")
-    for col in ("case", "reader", "input"):
-        table.add_column(col, overflow="fold")
-    for c in cases:
-        table.add_row(escape(c.name), c.format, escape(str(c.path)))
-    out.print(table)
-    if dry_run:
-        return
-    resolved = {name: cfg.model_dump(mode="json") for name, cfg in configs.items()}
-    tasks = [
-        CaseTask(
-            name=c.name,
-            input=str(c.path.resolve()),
-            reader=c.format,
-            workdir=str(wd),
-            configs=resolved,
-            until=until,
-        )
-        for c in cases
-    ]
-    t0 = time.perf_counter()
-    rows = run_cases(
-        executor,
-        process_case,
-        tasks,
+    run_batch(
+        build_pipeline(),
+        batch_case,
+        folder,
+        workdir,
+        config_files=config or [],
+        sets=set_ or [],
+        format_=format_,
+        executor=executor,
         jobs=jobs,
-        workdir=wd,
-        cluster=cluster,
+        until=until,
+        cluster_config=cluster_config,
         ray_address=ray_address,
-        on_row=_print_case_row,
-        note=lambda m: console.print(f"[dim]{escape(m)}[/dim]"),
+        dry_run=dry_run,
+        console=console,
+        out=out,
     )
-    elapsed = time.perf_counter() - t0
-    csv_path = write_csv(rows, wd / "batch.csv")
-    html_path = write_html(rows, wd / "batch.html", title=f"endopipe batch: {folder}")
-    failed = [r for r in rows if r.status != "ok"]
-    out.print(
-        f"{len(rows)} case(s), {len(rows) - len(failed)} ok, {len(failed)} failed, "
-        f"{elapsed:.1f} s with the {executor} executor -> {csv_path}, {html_path}"
-    )
-    if failed:
-        raise EndopipeError(
-            f"{len(failed)} of {len(rows)} case(s) failed; reasons in {csv_path}", exit_code=3
-        )
 
 
 def _click_errors() -> tuple[type[Exception], ...]:

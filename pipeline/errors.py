@@ -32,3 +32,11 @@ class CaseLocked(EndopipeError):
     """Another endopipe process is working on the same case."""
 
     exit_code = 4
+
+
+def one_line(e: BaseException | str, limit: int = 300) -> str:
+    """The first non-empty line of an error, cut to `limit` characters: what a table cell or
+    a log line can hold."""
+    text = str(e).strip()
+    line = next((ln.strip() for ln in text.splitlines() if ln.strip()), type(e).__name__)
+    return line if len(line) <= limit else line[: limit - 1] + "…"

@@ -11,7 +11,7 @@ import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import psutil
 from filelock import FileLock, Timeout
@@ -79,6 +79,19 @@ class RunRecord(BaseModel):
     stages: list[StageRecord] = []
 
 
+def read_runs(case_dir: Path, limit: int | None = None) -> list[RunRecord]:
+    """The case's run records (<case>/runs/*.json), newest first; unreadable ones are skipped."""
+    records = []
+    for path in sorted((Path(case_dir) / "runs").glob("*.json"), reverse=True):
+        if limit is not None and len(records) >= limit:
+            break
+        try:
+            records.append(RunRecord.model_validate_json(path.read_text()))
+        except ValueError:
+            continue
+    return records
+
+
 def package_versions() -> dict[str, str]:
     out = {}
     for name in TRACKED_PACKAGES:
@@ -133,6 +146,22 @@ class Pipeline:
 
     def folder_name(self, name: str) -> str:
         return f"{self.index(name) + 1:02d}_{name}"
+
+    def folders(self, case_dir: Path) -> dict[str, Path]:
+        """Each stage's published folder in `case_dir` (present or not), by stage name."""
+        return {s.name: self.folder(case_dir, s.name) for s in self.stages}
+
+    def folder(self, case_dir: Path, name: str) -> Path:
+        """Where stage `name` publishes in `case_dir`: commands ask here, never spell it."""
+        return Path(case_dir) / self.folder_name(name)
+
+    def manifest(self, case_dir: Path, name: str) -> Manifest | None:
+        """Stage `name`'s manifest in `case_dir` (its summary, times, memory), None if absent."""
+        return Manifest.load(self.folder(case_dir, name))
+
+    def view(self, case_dir: Path, name: str) -> Any:
+        """Stage `name`'s own typed view of its published folder in `case_dir`."""
+        return self.by_name[name].view(self.folder(case_dir, name))
 
     def index(self, name: str) -> int:
         if name not in self.by_name:

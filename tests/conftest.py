@@ -44,3 +44,19 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"shared data not found at {SHARED_DATA}")
     return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def tiny_case(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The real output of every stage: a tiny synthetic colon (16 frames, 160x128) run end to
+    end through the CLI with test_pipeline_e2e's TINY settings (about 2.5 minutes, once per
+    session). Tests that change it work on a copy."""
+    from endopipe.cli import main
+    from endopipe.commands.synth import SynthConfig, generate_case
+    from tests.test_pipeline_e2e import TINY
+
+    src = tmp_path_factory.mktemp("tiny_input") / "colon"
+    generate_case(src, SynthConfig(seed=3, frames=16, width=160, height=128))
+    wd = tmp_path_factory.mktemp("tiny_wd")
+    assert main(["run", str(src / "video.mp4"), "--workdir", str(wd), "--quiet", *TINY]) == 0
+    return wd / "colon"

@@ -13,15 +13,14 @@ from pathlib import Path
 
 import pytest
 
-from endopipe.cli import main, process_case
+from endopipe.cli import batch_case, main
+from endopipe.commands.batch import CaseRow, CaseTask
+from endopipe.commands.batch.driver import run_cases
 from endopipe.pipeline.errors import EndopipeError
 from endopipe.pipeline.executors import (
-    CaseRow,
-    CaseTask,
     ClusterConfig,
     load_cluster_config,
     make_executor,
-    run_cases,
     threads_per_job,
 )
 from tests.conftest import textured_frames, write_video
@@ -184,16 +183,16 @@ def test_ray_executor_on_a_local_ray_cluster(batch_folder: Path, tmp_path: Path)
 
 
 def test_case_function_is_picklable_and_never_raises(tmp_path: Path) -> None:
-    assert pickle.loads(pickle.dumps(process_case)) is process_case
+    assert pickle.loads(pickle.dumps(batch_case)) is batch_case
     task = CaseTask(
         name="gone", input=str(tmp_path / "gone.mp4"), reader="auto",
         workdir=str(tmp_path / "wd"), configs={}, until="ingest",
     )  # fmt: skip
-    row = process_case(pickle.loads(pickle.dumps(task)))
+    row = batch_case(pickle.loads(pickle.dumps(task)))
     assert isinstance(row, CaseRow) and row.status == "failed"
     assert row.reason.startswith("input not found")
     bad = task.model_copy(update={"configs": {"ingest": {"stride": "two"}}})
-    assert process_case(bad).reason.startswith("internal error")  # caught, not raised
+    assert batch_case(bad).reason.startswith("internal error")  # caught, not raised
 
 
 def crash_or_ok(task: CaseTask) -> CaseRow:
@@ -246,3 +245,19 @@ def test_no_cases_and_bad_executor_are_one_line(tmp_path: Path, capsys) -> None:
     args = ["batch", str(tmp_path), "--workdir", str(tmp_path / "wd"), "--executor", "k8s"]
     assert main(args) == 2
     assert "unknown executor 'k8s'" in capsys.readouterr().err
+
+
+def test_batch_page_links_each_case_to_its_report(tmp_path: Path) -> None:
+    from endopipe.commands.batch.page import write_html
+    from endopipe.commands.batch.table import write_csv
+
+    rows = [
+        CaseRow(case="a", status="ok", reader="case", report="a/07_report/report.html",
+                metrics={"depth.abs_rel": 0.1}),
+        CaseRow(case="b", status="ok", reader="case", metrics={"depth.abs_rel": 0.3}),
+    ]  # fmt: skip
+    page = write_html(rows, tmp_path / "batch.html").read_text()
+    assert "<a href='a/07_report/report.html'>a</a>" in page and "<a href='b" not in page
+    assert "<td>0.2</td>" in page  # the mean row of abs_rel
+    write_csv(rows, tmp_path / "batch.csv")
+    assert read_csv(tmp_path)["a"]["report"] == "a/07_report/report.html"

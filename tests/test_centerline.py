@@ -16,15 +16,13 @@ from rich.console import Console
 
 from endopipe.pipeline.stage import CaseInfo, StageContext
 from endopipe.stages.camera import Camera, backproject
+from endopipe.stages.centerline.cavity import fit_cavity
+from endopipe.stages.centerline.config import CenterlineConfig
+from endopipe.stages.centerline.evaluate import compare_to_truth
 from endopipe.stages.centerline.prior import EllipsoidPrior, LumenPrior, TubePrior
-from endopipe.stages.centerline.stage import (
-    Centerline,
-    CenterlineConfig,
-    CenterlineView,
-    compare_to_truth,
-    fit_cavity,
-    fit_tube,
-)
+from endopipe.stages.centerline.stage import Centerline
+from endopipe.stages.centerline.tube import fit_tube
+from endopipe.stages.centerline.view import CenterlineView
 from endopipe.stages.io.ground_truth import GroundTruth
 from endopipe.stages.poses.view import CamerasFile, PosesView
 
@@ -144,6 +142,33 @@ def test_cavity_fits_an_ellipsoid() -> None:
     assert isinstance(fit.prior(), EllipsoidPrior)
 
 
+def test_view_reads_back_a_cavity_and_its_prior(tmp_path: Path) -> None:
+    """What the stage writes (centerline.json, prior.npz) the view returns: the curve, the
+    ellipsoid, and a prior that answers like the fitted one; a missing prior says what to do."""
+    from endopipe.pipeline.errors import EndopipeError
+    from endopipe.pipeline.stage import write_json
+
+    rng = np.random.default_rng(2)
+    d = rng.normal(size=(3000, 3))
+    pts = (d / np.linalg.norm(d, axis=1, keepdims=True)) * [30.0, 20.0, 15.0]
+    cams = rng.normal(0, 3, (20, 3))
+    fit = fit_cavity(cams, np.tile([1.0, 0, 0], (20, 1)), pts, CenterlineConfig(prior="cavity"))
+    write_json(tmp_path / "centerline.json", fit.to_file("mm").model_dump(exclude_none=True))
+    with pytest.raises(EndopipeError, match="re-run the centerline stage"):
+        CenterlineView(tmp_path).prior()
+    fit.prior().save(tmp_path / "prior.npz")
+    view = CenterlineView(tmp_path)
+    assert view.kind == "cavity" and view.units == "mm"
+    np.testing.assert_allclose(view.points, fit.points, atol=1e-6)
+    np.testing.assert_allclose(view.file.ellipsoid.axes, fit.ellipsoid[1])
+    probe = torch.tensor(rng.normal(0, 25, (200, 3)))
+    np.testing.assert_allclose(
+        view.prior().signed_distance(probe).numpy(),
+        fit.prior().signed_distance(probe).numpy(),
+        atol=1e-5,
+    )
+
+
 # --- a synthetic colon written as a 02_poses folder -------------------------------------------
 def write_poses_folder(
     case: Path,
@@ -249,7 +274,7 @@ def test_synth_colon_60_frames_320x256_meets_the_bounds(tmp_path: Path) -> None:
 
 
 def test_runaway_cavity_fit_is_rejected_for_the_moment_ellipsoid() -> None:
-    from endopipe.stages.centerline.stage import implausible_ellipsoid, moment_ellipsoid
+    from endopipe.stages.centerline.cavity import implausible_ellipsoid, moment_ellipsoid
 
     rng = np.random.default_rng(0)
     u = rng.normal(size=(4000, 3))

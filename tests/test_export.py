@@ -1,6 +1,6 @@
 """endopipe export: every format round-trips the poses of cameras.json (and the depth, masks).
 
-Built on the hand-made case of test_report.make_case: cameras advancing along +z towards the wall
+Built on the hand-made case of handmade_case.make_case: cameras advancing along +z towards the wall
 z = WALL_Z, with exact depth, so what is read back can be compared with what was written.
 """
 
@@ -15,22 +15,30 @@ import numpy as np
 import pytest
 import trimesh
 
-from endopipe.cli import main
+from endopipe.cli import build_pipeline, main
+from endopipe.commands import export
 from endopipe.commands.export import (
     ENDONERF_AXES,
+    ExportResult,
     c2w_from_llff,
     endonerf_depth_scale,
-    export_case,
-    find_stage_folders,
     llff_matrix,
-    read_colmap_text,
     read_endonerf,
     read_nerfstudio,
 )
 from endopipe.pipeline.errors import EndopipeError
-from endopipe.stages.io.colmap_model import OPENGL_FROM_OPENCV, read_transforms_json
+from endopipe.stages.io.colmap_model import (
+    OPENGL_FROM_OPENCV,
+    read_colmap_model,
+    read_transforms_json,
+)
 from endopipe.stages.poses.view import CamerasFile
-from tests.test_report import UNREGISTERED, WALL_Z, H, W, make_case
+from tests.handmade_case import UNREGISTERED, WALL_Z, H, W, make_case
+
+
+def export_case(case: Path, fmt: str, out: Path | None = None, **kw) -> ExportResult:
+    """The export with the engine's stage folders, as the command passes them."""
+    return export.export_case(case, fmt, out, folders=build_pipeline().folders(case), **kw)
 
 
 def cameras_of(case: Path) -> CamerasFile:
@@ -46,11 +54,15 @@ def case(tmp_path: Path) -> Path:
     return make_case(tmp_path)
 
 
-def test_stage_folders_are_found(case: Path) -> None:
-    folders = find_stage_folders(case)
+def test_stage_folders_come_from_the_engine(case: Path) -> None:
+    folders = build_pipeline().folders(case)
     assert folders["poses"] == case / "02_poses" and folders["mesh"] == case / "06_mesh"
     (case / "exports").mkdir()
-    assert "exports" not in find_stage_folders(case)
+    assert "exports" not in folders.values()
+    # a stage folder under another name is not this case's stage: no poses, no export
+    (case / "02_poses").rename(case / "02_poses_old")
+    with pytest.raises(EndopipeError, match="no camera poses"):
+        export_case(case, "colmap")
 
 
 # --- nerfstudio -----------------------------------------------------------------------------------
@@ -104,9 +116,10 @@ def test_nerfstudio_without_depth_and_with_symlinks(tmp_path: Path) -> None:
 def test_colmap_written_from_cameras_json(case: Path) -> None:
     export_case(case, "colmap")
     out = case / "exports" / "colmap"
-    camera, poses = read_colmap_text(out / "sparse" / "0")
-    assert camera.model == "PINHOLE" and (camera.width, camera.height) == (W, H)
-    k, want_k = camera.intrinsics(), cameras_of(case).intrinsics()
+    model = read_colmap_model(out / "sparse" / "0")
+    camera, poses = model.camera, model.c2w
+    assert model.colmap_model == "PINHOLE" and (camera.width, camera.height) == (W, H)
+    k, want_k = camera, cameras_of(case).intrinsics()
     assert (k.fx, k.fy, k.cx, k.cy) == pytest.approx((want_k.fx, want_k.fy, want_k.cx, want_k.cy))
     want = registered(case)
     assert sorted(poses) == [f"{i:06d}.png" for i in sorted(want)]
@@ -117,7 +130,6 @@ def test_colmap_written_from_cameras_json(case: Path) -> None:
 
 
 def test_colmap_model_is_read_by_pycolmap(case: Path) -> None:
-    pytest.importorskip("pycolmap")
     from endopipe.stages.io.colmap_model import read_colmap_model
 
     export_case(case, "colmap")
@@ -133,7 +145,7 @@ def test_colmap_copies_the_poses_stage_model(tmp_path: Path) -> None:
     for name in ("cameras.txt", "images.txt", "points3D.txt"):
         assert filecmp.cmp(out / name, case / "02_poses" / "sparse" / name, shallow=False)
     assert any("copied" in n for n in result.notes)
-    _, poses = read_colmap_text(out)
+    poses = read_colmap_model(out).c2w
     for i, c2w in registered(case).items():
         assert np.allclose(poses[f"{i:06d}.png"], c2w, atol=1e-9)
 
@@ -223,6 +235,22 @@ def test_ply_round_trip(case: Path) -> None:
     assert len(cloud.vertices) > 100
     assert np.allclose(cloud.vertices[:, 2], WALL_Z, atol=1e-3)
     assert filecmp.cmp(out / "mesh.ply", case / "06_mesh" / "mesh.ply", shallow=False)
+
+
+def test_ply_points_are_voxel_thinned_to_max_points(case: Path, tmp_path: Path) -> None:
+    full = export_case(case, "ply", tmp_path / "full", point_stride=1)
+    thin = export_case(case, "ply", tmp_path / "thin", point_stride=1, max_points=300)
+    n_full = len(trimesh.load(tmp_path / "full" / "points.ply", process=False).vertices)
+    cloud = trimesh.load(tmp_path / "thin" / "points.ply", process=False)
+    assert n_full > 1000 and 100 < len(cloud.vertices) <= 300
+    assert f"{len(cloud.vertices):,} points" in " ".join(thin.notes)
+    assert np.allclose(cloud.vertices[:, 2], WALL_Z, atol=1e-3)  # still on the wall
+    # the thinned cloud still covers what the full one covers (the voxels are < 1/10 of it)
+    full_pts = trimesh.load(tmp_path / "full" / "points.ply", process=False).vertices
+    span = np.ptp(full_pts[:, :2], axis=0)
+    assert np.all(np.ptp(cloud.vertices[:, :2], axis=0) > 0.9 * span)
+    colours = np.asarray(cloud.visual.vertex_colors)[:, :3]
+    assert colours.std() > 0 and len(full.notes) == len(thin.notes)
 
 
 def test_ply_needs_a_mesh_or_depth(tmp_path: Path) -> None:

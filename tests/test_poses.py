@@ -18,10 +18,19 @@ import trimesh
 
 from endopipe.cli import main
 from endopipe.pipeline.errors import StageFailed
-from endopipe.stages.camera import Camera, apply_sim3, look_at, rotation_angle_deg
+from endopipe.stages.camera import (
+    Camera,
+    apply_sim3,
+    look_at,
+    project_camera,
+    rotation_angle_deg,
+)
+from endopipe.stages.ingest.view import FrameEntry, FramesFile, IngestView
 from endopipe.stages.io.colmap_model import (
-    CameraModel,
+    COLMAP_MODELS,
     PoseSet,
+    camera_from_colmap,
+    camera_to_colmap,
     read_colmap_model,
     read_transforms_json,
     write_text_model,
@@ -33,7 +42,8 @@ from endopipe.stages.metrics.depth import (
     pose_metrics,
     relative_rotation_error_deg,
 )
-from endopipe.stages.poses.stage import PosesConfig, match_frames, ranges
+from endopipe.stages.poses.config import PosesConfig
+from endopipe.stages.poses.stage import match_frames, ranges
 from endopipe.stages.poses.view import CamerasFile, PosesView
 
 # ---------------------------------------------------------------- helpers and fixtures
@@ -291,6 +301,16 @@ def test_source_file_missing_is_one_line(colon: Path, tmp_path: Path, capsys) ->
     assert not (tmp_path / "colon" / "02_poses").exists()
 
 
+def test_unreadable_ground_truth_poses_are_one_line(colon: Path, tmp_path: Path, capsys) -> None:
+    case = tmp_path / "colon"
+    shutil.copytree(colon, case)
+    data = json.loads((case / "gt" / "poses.json").read_text())
+    data["poses"][3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]  # not a 4x4
+    (case / "gt" / "poses.json").write_text(json.dumps(data))
+    code, out = run(capsys, case, tmp_path / "wd", "poses.source=gt")
+    assert_one_line_failure(code, out, "cannot read the ground-truth poses")
+
+
 # ---------------------------------------------------------------- the quality gate
 
 
@@ -347,40 +367,99 @@ def test_colmap_text_model_and_transforms_json_round_trip(tmp_path: Path) -> Non
         )
         for i in range(5)
     }
-    write_text_model(tmp_path / "sparse", CameraModel.pinhole(k), poses)
+    write_text_model(tmp_path / "sparse", k, poses)
     model = read_colmap_model(tmp_path / "sparse")
-    assert model.camera.intrinsics().model_dump() == pytest.approx(k.model_dump())
+    assert model.colmap_model == "PINHOLE" and model.camera == k
     for name, c2w in poses.items():
         assert np.allclose(model.c2w[name], c2w, atol=1e-9)
     frames = [(f"images/{n}", None, c) for n, c in poses.items()]
-    write_transforms_json(tmp_path / "transforms.json", CameraModel.pinhole(k), frames)
+    write_transforms_json(tmp_path / "transforms.json", k, frames)
     back = read_transforms_json(tmp_path / "transforms.json")
-    assert back.camera is not None and back.camera.intrinsics().cx == pytest.approx(k.cx)
+    assert back.camera is not None and back.camera.cx == pytest.approx(k.cx)
+    assert not back.camera.distorted
     for name, c2w in poses.items():
         assert np.allclose(back.c2w[name], c2w)
-    # known distortion: an OPENCV camera with the same pinhole part
-    distorted = CameraModel.from_intrinsics(k.model_copy(update={"dist": [0.1, 0.01, 0, 0, 0]}))
-    assert distorted.model == "OPENCV" and distorted.params[4:] == [0.1, 0.01, 0.0, 0.0]
-    assert distorted.intrinsics().model_dump() == pytest.approx(k.model_dump())
-    # half resolution: focal lengths halve, the pixel-centre convention is kept
-    half = CameraModel.pinhole(k).scaled(160, 128).intrinsics()
-    assert half.model_dump() == pytest.approx(k.scaled(160, 128).model_dump())
+    # known distortion: an OPENCV camera with the same pinhole part, through both files
+    distorted = k.model_copy(update={"model": "opencv", "dist": [0.1, 0.01, 0.002, -0.001]})
+    model, params = camera_to_colmap(distorted)
+    assert model == "OPENCV" and params == [150.0, 151.0, 160.0, 128.0, 0.1, 0.01, 0.002, -0.001]
+    write_text_model(tmp_path / "distorted", distorted, poses)
+    assert read_colmap_model(tmp_path / "distorted").camera == distorted
+    write_transforms_json(tmp_path / "distorted.json", distorted, frames)
+    back = read_transforms_json(tmp_path / "distorted.json").camera
+    assert back is not None and back.coefficients()[:4].tolist() == distorted.dist
+    fisheye = k.model_copy(update={"model": "fisheye", "dist": [0.05, -0.01, 0.002, 0.0]})
+    write_transforms_json(tmp_path / "fisheye.json", fisheye, frames)
+    assert read_transforms_json(tmp_path / "fisheye.json").camera == fisheye
+
+
+@pytest.mark.parametrize("model", sorted(COLMAP_MODELS))
+def test_colmap_cameras_convert_both_ways_with_their_distortion(model: str) -> None:
+    """Every COLMAP model endopipe reads is the same camera as its `Camera`: both project a
+    point to the same pixel (pycolmap's own projection), and the params come back unchanged."""
+    import pycolmap
+
+    _, names = COLMAP_MODELS[model]
+    values = {"f": 150.0, "fx": 150.0, "fy": 152.0, "cx": 161.0, "cy": 127.0}
+    values |= {"k1": -0.2, "k2": 0.05, "p1": 0.001, "p2": -0.002, "k3": 0.01, "k4": 0.003}
+    if model == "FULL_OPENCV":
+        values["k4"] = 0.0  # its rational terms (k4..k6) are not an endopipe lens
+    params = [values.get(n, 0.0) for n in names]
+    camera = camera_from_colmap(model, 320, 256, params)
+    assert camera_to_colmap(camera, model) == (model, params)
+    rng = np.random.default_rng(0)
+    points = np.c_[rng.uniform(-0.5, 0.5, (50, 2)), np.ones(50)] * rng.uniform(1, 5, (50, 1))
+    ours, _ = project_camera(camera, points)
+    colmap = pycolmap.Camera(model=model, width=320, height=256, params=params)
+    theirs = np.asarray(colmap.img_from_cam(points)) - 0.5  # COLMAP: pixel centres at +0.5
+    np.testing.assert_allclose(ours, theirs, atol=1e-6)
+
+
+def test_a_camera_that_does_not_fit_a_colmap_model_is_refused() -> None:
+    k = Camera(width=320, height=256, fx=150.0, fy=151.0, cx=159.5, cy=127.5)
+    with pytest.raises(ValueError, match="one focal length"):
+        camera_to_colmap(k, "SIMPLE_RADIAL")
+    tangential = k.model_copy(update={"fy": 150.0, "model": "opencv", "dist": [0.1, 0, 0.01, 0]})
+    with pytest.raises(ValueError, match="no p1"):
+        camera_to_colmap(tangential, "RADIAL")
+    fisheye = k.model_copy(update={"model": "fisheye", "dist": [0.1, 0, 0, 0]})
+    assert camera_to_colmap(fisheye)[0] == "OPENCV_FISHEYE"
+    with pytest.raises(ValueError, match="fisheye lens"):
+        camera_to_colmap(fisheye, "OPENCV")
+
+
+def test_cameras_json_holds_one_camera_with_its_lens(tmp_path: Path) -> None:
+    """cameras.json keeps DESIGN §3's keys and gives back the camera with its distortion."""
+    k = Camera(width=320, height=256, fx=150.0, fy=150.0, cx=159.5, cy=127.5)
+    lens = k.model_copy(update={"model": "opencv", "dist": [-0.2, 0.0, 0.0, 0.0]})
+    cams = CamerasFile.build(
+        lens, {0: np.eye(4)}, 2, colmap_model="SIMPLE_RADIAL", metric=False, source="colmap"
+    )
+    data = cams.model_dump(mode="json")
+    assert {"width", "height", "fx", "fy", "cx", "cy", "model", "params", "frames"} <= set(data)
+    assert data["model"] == "SIMPLE_RADIAL" and data["params"] == [150.0, 160.0, 128.0, -0.2]
+    assert (data["fx"], data["cx"]) == (150.0, 159.5)
+    (tmp_path / "cameras.json").write_text(json.dumps(data))
+    view = PosesView(tmp_path)
+    assert view.intrinsics == lens and view.intrinsics.distorted
+    assert view.registered == [0]
+    with pytest.raises(ValueError, match="not those of"):
+        CamerasFile.model_validate({**data, "fx": 151.0})
 
 
 def test_file_images_are_matched_to_frames_by_number(tmp_path: Path) -> None:
-    class FakeIngest:
-        folder = tmp_path
-        frames = [
-            type("F", (), {"index": i, "source_index": 2 * i, "file": f"frames/{i:06d}.png"})
-            for i in range(4)
-        ]
-
-    (tmp_path / "frames.json").write_text(json.dumps({"source": {"path": "/nonexistent"}}))
+    entries = [
+        FrameEntry(index=i, source_index=2 * i, file=f"frames/{i:06d}.png", mask="m.png")
+        for i in range(4)
+    ]
+    frames = FramesFile(frames=entries, width=8, height=8, source={"path": "/no", "kind": "x"})
+    (tmp_path / "frames.json").write_text(frames.model_dump_json())
+    ingest = IngestView(tmp_path)
     eye = np.eye(4)
     by_number = PoseSet(None, {f"frame_{2 * i + 0:05d}.jpg": eye * (i + 1) for i in range(4)})
-    assert sorted(match_frames(by_number, FakeIngest())) == [0, 1, 2, 3]
+    assert sorted(match_frames(by_number, ingest)) == [0, 1, 2, 3]
     by_name = PoseSet(None, {f"{i:06d}.png": eye for i in (1, 3)})
-    assert sorted(match_frames(by_name, FakeIngest())) == [1, 3]
+    assert sorted(match_frames(by_name, ingest)) == [1, 3]
     assert ranges([0, 1, 2, 7, 9, 10]) == "0-2, 7, 9-10" and ranges([]) == ""
 
 

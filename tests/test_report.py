@@ -1,18 +1,18 @@
-"""report: the self-contained HTML page, built on small hand-made stage folders.
+"""report: the self-contained HTML page, on the real output of a tiny end-to-end run.
 
-`make_case` writes a case the way the stages would (frames.json, cameras.json via CamerasFile,
-depth .npy, a mesh, metrics, manifests) without running them: cameras move along +z looking at
-a wall (the plane z = WALL_Z), so ground-truth depth is analytic. test_export.py uses it too.
+`tiny_case` (conftest.py) runs every stage once per session; tests that need a missing or
+broken artefact change a copy of it. Expected figures are read from the stages' own files, so
+the page is checked against what the pipeline wrote, not against numbers typed in here.
 """
 
 from __future__ import annotations
 
-import hashlib
+import html
+import json
 import re
 import shutil
 import subprocess
 import tempfile
-import time
 from pathlib import Path
 
 import cv2
@@ -21,424 +21,186 @@ import pytest
 import trimesh
 from rich.console import Console
 
-from endopipe.pipeline.cache import Manifest, list_files
+from endopipe.cli import build_pipeline
+from endopipe.pipeline.cache import Manifest
 from endopipe.pipeline.stage import CaseInfo, StageContext, write_json
-from endopipe.stages.camera import Camera
-from endopipe.stages.poses.view import CamerasFile
-from endopipe.stages.report.stage import (
-    Report,
-    ReportConfig,
-    build_report,
-    decimate,
-    page_is_self_contained,
-    per_frame_series,
-    render_report,
-)
-
-W, H = 64, 48
-N_FRAMES = 6
-UNREGISTERED = 4
-WALL_Z = 40.0
-STAGE_FOLDERS = {
-    "ingest": "01_ingest",
-    "poses": "02_poses",
-    "centerline": "03_centerline",
-    "nerf": "04_nerf",
-    "depth": "05_depth",
-    "mesh": "06_mesh",
-}
-#: 05_depth/metrics.json as the depth stage writes it (stages.metrics.depth_sequence_metrics).
-DEPTH_METRICS = {
-    "median_scaled": {
-        "abs_rel": 0.0523,
-        "sq_rel": 0.11,
-        "rmse": 1.93,
-        "rmse_log": 0.071,
-        "delta1": 0.971,
-        "delta2": 0.995,
-        "delta3": 0.999,
-    },
-    "sequence_scaled": {
-        "abs_rel": 0.0687,
-        "sq_rel": 0.16,
-        "rmse": 2.41,
-        "rmse_log": 0.089,
-        "delta1": 0.952,
-        "delta2": 0.991,
-        "delta3": 0.998,
-        "scale": 1.02,
-    },
-    "frames": 5,
-    "per_frame": [
-        {"index": i, "median_scaled": {"abs_rel": a}, "sequence_scaled": {"abs_rel": b}}
-        for i, a, b in ((0, 0.05, 0.07), (1, 0.06, 0.08), (2, 0.04, 0.06), (3, 0.05, 0.06))
-    ],
-    "gt_kind": "exact",
-    "heldout_frames": [0],
-    "heldout_psnr": 23.4,
-    "heldout_ssim": 0.812,
-}
-#: The same, in the key names of the issue text (global_scaled, psnr, ssim, per_frame lists).
-DEPTH_METRICS_ALT = {
-    "median_scaled": DEPTH_METRICS["median_scaled"],
-    "global_scaled": DEPTH_METRICS["sequence_scaled"],
-    "psnr": 23.4,
-    "ssim": 0.812,
-    "per_frame": {
-        "index": [0, 1, 2, 3, 5],
-        "median_scaled": {"abs_rel": [0.05, 0.06, 0.04, 0.05, 0.06]},
-        "global_scaled": {"abs_rel": [0.07, 0.08, 0.06, 0.06, 0.07]},
-    },
-}
-#: 06_mesh/metrics.json as the mesh stage writes it.
-MESH_METRICS = {
-    "evaluated": True,
-    "chamfer": 0.842,
-    "chamfer_pct_radius": 14.03,
-    "accuracy": 0.8,
-    "completeness": 0.884,
-    "precision": 0.93,
-    "recall": 0.897,
-    "fscore": 0.913,
-    "threshold": 1.0,
-    "aligned": "gt_frame",
-    "sim3_scale": 1.0,
-}
-
-
-def _rot_y(deg: float) -> np.ndarray:
-    a = np.radians(deg)
-    return np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-
-
-def camera_poses(n: int = N_FRAMES) -> list[np.ndarray]:
-    """OpenCV c2w: cameras advancing along +z, wobbling, turning a little about y."""
-    poses = []
-    for i in range(n):
-        c2w = np.eye(4)
-        c2w[:3, :3] = _rot_y(4.0 * np.sin(i)) @ _rot_y(-3.0)
-        c2w[:3, 3] = [0.8 * np.sin(i), 0.5 * np.cos(i), 2.0 * i]
-        poses.append(c2w)
-    return poses
-
-
-def wall_depth(k: Camera, c2w: np.ndarray, wall_z: float = WALL_Z) -> np.ndarray:
-    """z-depth of the plane z = wall_z seen by the camera c2w (float32, H x W)."""
-    u, v = np.meshgrid(np.arange(k.width), np.arange(k.height))
-    rays = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u, float)], -1)
-    world_dz = rays @ c2w[:3, :3].T
-    return ((wall_z - c2w[2, 3]) / world_dz[..., 2]).astype(np.float32)
-
-
-def _manifest(folder: Path, stage: str, wall: float, rss: float, summary: dict) -> None:
-    now = time.time()
-    m = Manifest(
-        stage=stage,
-        key=hashlib.sha256(stage.encode()).hexdigest(),
-        version=1,
-        config={"example": True},
-        upstream={},
-        started=now - wall,
-        finished=now,
-        wall_s=wall,
-        peak_rss_mb=rss,
-        summary=summary,
-        files=list_files(folder),
-    )
-    (folder / "manifest.json").write_text(m.model_dump_json(indent=2))
-
-
-def make_case(
-    root: Path,
-    *,
-    gt: bool = True,
-    stages: tuple[str, ...] = ("ingest", "poses", "centerline", "nerf", "depth", "mesh"),
-    metrics: bool = True,
-    sparse: bool = False,
-    camera_scale: int = 1,
-    video: bool = False,
-) -> Path:
-    """A case folder as the pipeline would leave it (only the listed stages)."""
-    rng = np.random.default_rng(0)
-    case = root / "case"
-    case.mkdir(parents=True)
-    k = Camera(width=W, height=H, fx=50.0, fy=52.0, cx=31.0, cy=24.5)
-    poses = camera_poses()
-    gt_dir = root / "input" / "gt"
-    if gt:
-        (gt_dir / "depth").mkdir(parents=True)
-        for i, c2w in enumerate(poses):
-            np.save(gt_dir / "depth" / f"{i:06d}.npy", wall_depth(k, c2w))
-        write_json(
-            gt_dir / "poses.json",
-            {"convention": "opencv_c2w", "units": "mm", "poses": [p.tolist() for p in poses]},
-        )
-    info = CaseInfo(
-        name="case",
-        input=str(root / "input"),
-        kind="case",
-        input_digest="0" * 64,
-        gt_dir=str(gt_dir) if gt else None,
-    )
-    write_json(case / "case.json", info.model_dump())
-
-    if "ingest" in stages:
-        d = case / "01_ingest"
-        (d / "frames").mkdir(parents=True)
-        (d / "masks").mkdir()
-        entries = []
-        for i in range(N_FRAMES):
-            img = cv2.resize(rng.integers(40, 220, (6, 8, 3), dtype=np.uint8), (W, H))
-            cv2.imwrite(str(d / "frames" / f"{i:06d}.png"), img)
-            mask = np.full((H, W), 255, np.uint8)
-            mask[:6, :6] = 0  # a masked corner
-            cv2.imwrite(str(d / "masks" / f"{i:06d}.png"), mask)
-            entries.append(
-                {
-                    "index": i,
-                    "source_index": i,
-                    "time_s": i / 10,
-                    "file": f"frames/{i:06d}.png",
-                    "mask": f"masks/{i:06d}.png",
-                }
-            )
-        cv2.imwrite(str(d / "contact_sheet.png"), np.full((H * 2, W * 3, 3), 128, np.uint8))
-        write_json(
-            d / "frames.json",
-            {
-                "frames": entries,
-                "intrinsics": k.model_dump(),
-                "width": W,
-                "height": H,
-                "gt_dir": str(gt_dir) if gt else None,
-            },
-        )
-        _manifest(d, "ingest", 1.2, 310.0, {"kept": N_FRAMES, "source_frames": N_FRAMES})
-
-    if "poses" in stages:
-        d = case / "02_poses"
-        d.mkdir()
-        kc = k.scaled(W * camera_scale, H * camera_scale)
-        registered = {i: p for i, p in enumerate(poses) if i != UNREGISTERED}
-        cams = CamerasFile.build(kc, registered, N_FRAMES, metric=gt, source="test")
-        write_json(d / "cameras.json", cams.model_dump(mode="json"))
-        if sparse:
-            from endopipe.stages.io.colmap_model import CameraModel, write_text_model
-
-            write_text_model(
-                d / "sparse",
-                CameraModel.pinhole(kc),
-                {f"{i:06d}.png": p for i, p in registered.items()},
-            )
-        summary = {
-            "source": "test",
-            "registered": len(registered),
-            "total": N_FRAMES,
-            "registered_fraction": len(registered) / N_FRAMES,
-            "metric": gt,
-        }
-        if gt:
-            summary.update(ate_mm=0.42, ate_percent_of_path=4.2, rre_deg=0.31)
-        _manifest(d, "poses", 3.4, 420.0, summary)
-
-    if "centerline" in stages:
-        d = case / "03_centerline"
-        d.mkdir()
-        z = np.linspace(-2, 14, 20)
-        pts = np.stack([np.zeros_like(z), np.zeros_like(z), z], 1)
-        write_json(
-            d / "centerline.json",
-            {
-                "kind": "tube",
-                "units": "mm",
-                "points": pts.tolist(),
-                "radius": np.full(20, 6.0).tolist(),
-                "arclength": (z - z[0]).tolist(),
-                "camera_span": [2.0, 12.0],
-                "radius_source": "points",
-            },
-        )
-        cv2.imwrite(str(d / "centerline.png"), np.full((40, 60, 3), 200, np.uint8))
-        _manifest(d, "centerline", 0.8, 300.0, {"kind": "tube", "length": 16.0})
-
-    if "nerf" in stages:
-        d = case / "04_nerf"
-        d.mkdir()
-        rows = ["step,loss,photo,prior,psnr"] + [
-            f"{s},{0.2 * np.exp(-s / 50) + 0.01:.5f},{0.15 * np.exp(-s / 50):.5f},,"
-            f"{14 + 8 * (1 - np.exp(-s / 60)):.3f}"
-            for s in range(0, 201, 20)
-        ]
-        (d / "train_log.csv").write_text("\n".join(rows) + "\n")
-        (d / "model.pt").write_bytes(b"not a real model")
-        if metrics:
-            write_json(d / "metrics.json", {"psnr": 23.4, "render_ms": 12.0})
-        _manifest(d, "nerf", 95.0, 1800.0, {"steps": 200, "heldout_psnr": 23.4})
-
-    if "depth" in stages:
-        d = case / "05_depth"
-        (d / "depth").mkdir(parents=True)
-        for i, c2w in enumerate(poses):
-            if i == UNREGISTERED:
-                continue
-            depth = wall_depth(k, c2w)
-            depth[-3:, -3:] = 0  # invalid pixels
-            np.save(d / "depth" / f"{i:06d}.npy", depth)
-        if metrics and gt:
-            write_json(d / "metrics.json", DEPTH_METRICS)
-        if video:
-            from tests.conftest import write_video
-
-            write_video(d / "preview.mp4", [np.full((H, W * 3, 3), 90, np.uint8)] * 3)
-        _manifest(d, "depth", 12.5, 900.0, {"frames": N_FRAMES - 1})
-
-    if "mesh" in stages:
-        d = case / "06_mesh"
-        d.mkdir()
-        mesh = trimesh.creation.cylinder(radius=6.0, height=16.0, sections=48)
-        mesh.apply_translation([0, 0, 6.0])
-        mesh.export(d / "mesh.ply")
-        if metrics and gt:
-            write_json(d / "metrics.json", MESH_METRICS)
-        _manifest(d, "mesh", 4.0, 500.0, {"vertices": len(mesh.vertices)})
-    return case
-
+from endopipe.stages.metrics.depth import affine_sequence_metrics
+from endopipe.stages.report.kit import duration, fmt
+from endopipe.stages.report.load import STAGES
+from endopipe.stages.report.mesh3d import decimate, page_is_self_contained
+from endopipe.stages.report.render import build_report, render_report
+from endopipe.stages.report.sections import per_frame_series
+from endopipe.stages.report.stage import Report, ReportConfig
 
 #: A cheaper config for tests that are not about the previews.
 FAST = ReportConfig(max_preview_frames=1, mesh_views=1)
+PIPELINE = build_pipeline()
 
 
 def folders_of(case: Path) -> dict[str, Path]:
-    return {name: case / folder for name, folder in STAGE_FOLDERS.items()}
+    """Stage name -> published folder, named by the engine."""
+    return {name: PIPELINE.folder(case, name) for name in STAGES}
+
+
+def read(case: Path, stage: str, name: str) -> dict:
+    return json.loads((folders_of(case)[stage] / name).read_text())
 
 
 @pytest.fixture
-def full_case(tmp_path: Path) -> Path:
-    return make_case(tmp_path, video=True)
+def case_copy(tiny_case: Path, tmp_path: Path) -> Path:
+    """A copy of the tiny case to break or trim (its ground truth stays where it was)."""
+    return Path(shutil.copytree(tiny_case, tmp_path / tiny_case.name))
 
 
 # --- content ----------------------------------------------------------------------------------
 
 
-def test_full_report_has_every_section_and_metric(full_case: Path) -> None:
-    page, info = render_report(full_case, folders_of(full_case), ReportConfig())
+def test_pipeline_report_stage_rendered_every_section(tiny_case: Path) -> None:
+    """The report the pipeline itself wrote (07_report): complete, with the GT kind."""
+    folder = PIPELINE.folder(tiny_case, "report")
+    summary = Manifest.load(folder).summary
+    assert all(summary["sections"].values()), summary["sections"]
+    assert summary["gt_kind"] == "exact"
+    assert summary["mesh_viewer"].startswith("three.js")
+    assert [p.name for p in folder.iterdir() if p.name != "manifest.json"] == ["report.html"]
+
+
+def test_full_report_shows_what_the_stages_wrote(tiny_case: Path) -> None:
+    page, info = render_report(tiny_case, folders_of(tiny_case), ReportConfig())
     assert all(info.sections.values()), info.sections
     assert info.gt_kind == "exact"
     assert info.mesh_viewer.startswith("three.js")
-    for text in (
-        "Summary",
-        "per-frame median scaling",
-        "one scale for the sequence",
-        "0.0523",  # AbsRel, median scaling
-        "0.0687",  # AbsRel, one global scale
-        "0.812",  # SSIM
-        "23.4",  # PSNR
-        "0.842",  # Chamfer
-        "0.913",  # F-score
-        "ATE",
-        "14.03",  # Chamfer as % of the radius
-        "at 1 mm",  # F-score threshold
-        "5 of 6 frames",  # registered ratio
-        "metric (mm)",
-        "exact",
-        "data:video/mp4;base64,",
-        "<iframe",
+    depth = read(tiny_case, "depth", "metrics.json")
+    mesh = read(tiny_case, "mesh", "metrics.json")
+    cameras = read(tiny_case, "poses", "cameras.json")
+    poses = Manifest.load(folders_of(tiny_case)["poses"]).summary
+    registered = sum(f["registered"] for f in cameras["frames"])
+    for label, shown in (
+        ("AbsRel, median scaling", fmt(depth["median_scaled"]["abs_rel"])),
+        ("AbsRel, one scale", fmt(depth["sequence_scaled"]["abs_rel"])),
+        ("δ1", fmt(depth["median_scaled"]["delta1"])),
+        ("SSIM", fmt(depth["heldout_ssim"])),
+        ("PSNR", fmt(depth["heldout_psnr"], "dB")),
+        ("Chamfer", fmt(mesh["chamfer"], "mm")),
+        ("Chamfer % of radius", fmt(mesh["chamfer_pct_radius"], "%")),
+        ("F-score", fmt(mesh["fscore"])),
+        ("F-score threshold", f"at {mesh['threshold']:.3g} mm"),
+        ("ATE", fmt(poses["ate_mm"], "mm")),
+        ("registered", f"{registered} of {len(cameras['frames'])} frames"),
+        ("protocol", "per-frame median scaling"),
+        ("protocol", "one scale for the sequence"),
+        ("scale", "metric (mm)"),
+        ("video", "data:video/mp4;base64,"),
+        ("viewer", "<iframe"),
+        ("per-frame plot", "AbsRel per frame."),
+        ("distance bands", "nearest camera (radii)"),
     ):
-        assert text in page, text
+        assert shown in page, (label, shown)
     # one wall-time row per stage, from the manifests
-    for stage, wall in (("ingest", "1.2 s"), ("nerf", "1 min 35 s"), ("mesh", "4.0 s")):
-        assert re.search(rf"<b>{stage}</b>.*?{re.escape(wall)}", page, re.S), stage
-    assert "1,800 MB" in page  # nerf's peak memory
+    for stage in STAGES:
+        m = Manifest.load(folders_of(tiny_case)[stage])
+        assert re.search(rf"<b>{stage}</b>.*?{re.escape(duration(m.wall_s))}", page, re.S), stage
+        assert f"{m.peak_rss_mb:,.0f} MB" in page, stage
 
 
-def test_report_reads_the_alternative_key_names(tmp_path: Path) -> None:
-    case = make_case(tmp_path)
-    write_json(case / "05_depth" / "metrics.json", DEPTH_METRICS_ALT)
-    page = build_report(case, folders_of(case), FAST)
-    for text in ("0.0523", "0.0687", "0.812", "23.4", "one scale for the sequence"):
-        assert text in page, text
-    assert "AbsRel per frame" in page
-
-
-def test_mesh_not_evaluated_shows_the_reason(tmp_path: Path) -> None:
-    case = make_case(tmp_path)
-    write_json(
-        case / "06_mesh" / "metrics.json",
-        {"evaluated": False, "reason": "cameras not metric and fewer than 3 GT poses"},
-    )
-    page = build_report(case, folders_of(case), FAST)
-    assert "not evaluated: cameras not metric and fewer than 3 GT poses" in page
-
-
-def test_report_is_self_contained(full_case: Path) -> None:
-    page = build_report(full_case, folders_of(full_case))
+def test_report_is_self_contained(tiny_case: Path) -> None:
+    page = build_report(tiny_case, folders_of(tiny_case))
     assert page_is_self_contained(page)
     # nothing is fetched: every src / href is a data URI or an in-page anchor
     for attr in re.findall(r"""\b(?:src|href)\s*=\s*["']([^"']*)""", page):
         assert attr.startswith(("data:", "#")), attr[:80]
     # the viewer inside the iframe carries three.js itself
-    import html
-
     srcdoc = html.unescape(re.search(r'srcdoc="([^"]*)"', page).group(1))
     assert page_is_self_contained(srcdoc)
     assert "WebGLRenderer" in srcdoc and "GLTFLoader" in srcdoc
     assert len(page) < 8 * 2**20
 
 
-def test_report_degrades_without_gt_and_downstream_stages(tmp_path: Path) -> None:
-    case = make_case(tmp_path, gt=False, stages=("ingest", "poses"))
-    page, info = render_report(case, folders_of(case), ReportConfig())
+def test_report_degrades_without_gt_and_downstream_stages(case_copy: Path) -> None:
+    """A case without ground truth whose run stopped after poses."""
+    folders = folders_of(case_copy)
+    for stage in ("centerline", "nerf", "depth", "mesh"):
+        shutil.rmtree(folders[stage])
+    for path in (case_copy / "case.json", folders["ingest"] / "frames.json"):
+        write_json(path, {**json.loads(path.read_text()), "gt_dir": None})
+    cams = folders["poses"] / "cameras.json"
+    write_json(cams, {**json.loads(cams.read_text()), "metric": False, "units": "colmap"})
+    page, info = render_report(case_copy, folders, ReportConfig())
     assert info.gt_kind == "none"
     assert info.mesh_viewer == "none"
-    assert info.sections["summary"] and info.sections["stages"]
+    assert info.sections["summary"] and info.sections["stages"] and info.sections["poses"]
     assert not info.sections["depth"] and not info.sections["mesh"]
     assert page.count("Not available") >= 3
     assert "No ground truth" in page
     assert "arbitrary" in page  # not metric
 
 
-def test_report_says_which_metrics_are_missing(tmp_path: Path) -> None:
-    case = make_case(tmp_path, metrics=False)
-    page, info = render_report(
-        case, folders_of(case), FAST.model_copy(update={"include_mesh_viewer": False})
-    )
+def test_report_says_which_metrics_are_missing(case_copy: Path) -> None:
+    (folders_of(case_copy)["depth"] / "metrics.json").unlink()
+    (folders_of(case_copy)["mesh"] / "metrics.json").unlink()
+    cfg = FAST.model_copy(update={"include_mesh_viewer": False})
+    page, info = render_report(case_copy, folders_of(case_copy), cfg)
     assert "05_depth/metrics.json is missing" in page
     assert "06_mesh/metrics.json is missing" in page
     assert info.mesh_viewer == "static"
     assert "<iframe" not in page
 
 
-def test_broken_artefacts_do_not_break_the_page(tmp_path: Path) -> None:
-    case = make_case(tmp_path)
-    (case / "06_mesh" / "mesh.ply").write_bytes(b"ply\nformat nonsense\n")
-    (case / "05_depth" / "metrics.json").write_text("{not json")
-    (case / "04_nerf" / "manifest.json").write_text("[]")
-    np.save(case / "05_depth" / "depth" / "000000.npy", np.zeros((3,), np.float32))  # wrong shape
-    page, info = render_report(case, folders_of(case), FAST)
+def test_mesh_not_evaluated_shows_the_reason(case_copy: Path) -> None:
+    write_json(
+        folders_of(case_copy)["mesh"] / "metrics.json",
+        {"evaluated": False, "reason": "no ground-truth mesh"},
+    )
+    page = build_report(case_copy, folders_of(case_copy), FAST)
+    assert "not evaluated: no ground-truth mesh" in page
+
+
+def test_relative_ground_truth_shows_the_affine_protocol(case_copy: Path) -> None:
+    """A relative ground truth (depth up to scale and shift) gets the affine-invariant block."""
+    rng = np.random.default_rng(0)
+    gt = [rng.uniform(1, 5, (16, 20)).astype(np.float32) for _ in range(3)]
+    pred = [2.0 * g + 0.5 + rng.normal(0, 0.05, g.shape).astype(np.float32) for g in gt]
+    metrics = affine_sequence_metrics(pred, gt, [None] * 3, [0, 1, 2]) | {"gt_kind": "relative"}
+    write_json(folders_of(case_copy)["depth"] / "metrics.json", metrics)
+    page, info = render_report(case_copy, folders_of(case_copy), FAST)
+    assert info.gt_kind == "relative"
+    assert "scale and shift fitted per frame (relative ground truth)" in page
+    assert fmt(metrics["affine_invariant"]["spearman"]) in page
+    assert "Spearman ρ vs the relative GT" in page
+
+
+def test_broken_artefacts_do_not_break_the_page(case_copy: Path) -> None:
+    folders = folders_of(case_copy)
+    (folders["mesh"] / "mesh.ply").write_bytes(b"ply\nformat nonsense\n")
+    (folders["nerf"] / "manifest.json").write_text("[]")
+    first = min(int(p.stem) for p in (folders["depth"] / "depth").glob("*.npy"))
+    np.save(folders["depth"] / "depth" / f"{first:06d}.npy", np.zeros((3,), np.float32))
+    page, info = render_report(case_copy, folders, FAST)
     assert "mesh.ply unreadable" in page
+    assert f"frame {first}: " in page  # that preview row is dropped, with its reason
     assert "Not available" in page
     assert "</html>" in page.rstrip()[-10:]
-    assert info.sections["summary"]
+    assert info.sections["summary"] and info.sections["depth"]
 
 
-def test_report_stage_writes_one_html_file(tmp_path: Path) -> None:
-    case = make_case(tmp_path)
-    out = case / ".07_report.tmp"
+def test_report_stage_writes_one_html_file(tiny_case: Path, tmp_path: Path) -> None:
+    out = tmp_path / ".07_report.tmp"
     out.mkdir()
     ctx = StageContext(
-        case_dir=case,
+        case_dir=tiny_case,
         out=out,
         config=ReportConfig(max_preview_frames=2, mesh_views=1),
-        case=CaseInfo.load(case),
-        inputs=folders_of(case),
-        resolve_view=lambda name, folder: folder,
+        case=CaseInfo.load(tiny_case),
+        inputs=folders_of(tiny_case),
+        resolve_view=lambda name, folder: PIPELINE.by_name[name].view(folder),
         console=Console(quiet=True),
         quiet=True,
     )
     summary = Report().run(ctx)
     assert [p.name for p in out.iterdir()] == ["report.html"]
     assert summary.gt_kind == "exact" and 0 < summary.size_mb < 8
-    assert Report.needs == ("ingest", "poses", "centerline", "nerf", "depth", "mesh")
+    assert all(summary.sections.values()), summary.sections
+    assert Report.needs == STAGES
     with pytest.raises(ValueError):
         ReportConfig(unknown_key=1)
 
@@ -455,15 +217,17 @@ def test_decimate_keeps_the_shape_under_the_face_budget() -> None:
     assert len(same[1]) == len(sphere.faces)
 
 
-def test_per_frame_series_accepts_the_usual_shapes() -> None:
-    by_proto = per_frame_series(DEPTH_METRICS_ALT["per_frame"])
-    assert by_proto["per-frame median scaling"] == ([0, 1, 2, 3, 5], [0.05, 0.06, 0.04, 0.05, 0.06])
-    listed = per_frame_series(DEPTH_METRICS["per_frame"])
-    assert listed["one scale for the sequence"] == ([0, 1, 2, 3], [0.07, 0.08, 0.06, 0.06])
-    rows = [{"index": 3, "abs_rel": 0.1}, {"index": 7, "abs_rel": 0.2}]
-    assert per_frame_series(rows) == {"per frame": ([3, 7], [0.1, 0.2])}
-    nested = [{"index": 1, "median_scaled": {"abs_rel": 0.3}}]
-    assert per_frame_series(nested)["per-frame median scaling"] == ([1], [0.3])
+def test_per_frame_series_reads_the_depth_stage_per_frame_list(tiny_case: Path) -> None:
+    per_frame = read(tiny_case, "depth", "metrics.json")["per_frame"]
+    series = per_frame_series(per_frame)
+    index = [f["index"] for f in per_frame]
+    assert series["per-frame median scaling"] == (
+        index,
+        [f["median_scaled"]["abs_rel"] for f in per_frame],
+    )
+    assert series["one scale for the sequence"][0] == index
+    flat = [{"index": 3, "abs_rel": 0.1}, {"index": 7, "abs_rel": 0.2}]  # relative GT
+    assert per_frame_series(flat) == {"per frame": ([3, 7], [0.1, 0.2])}
     assert per_frame_series(None) == {}
 
 
@@ -479,9 +243,9 @@ CHROMIUM = next(
     CHROMIUM is None,
     reason="no headless browser: install Debian's `chromium` package (apt-get install chromium)",
 )
-def test_report_renders_in_headless_chromium(full_case: Path, tmp_path: Path) -> None:
+def test_report_renders_in_headless_chromium(tiny_case: Path, tmp_path: Path) -> None:
     page = tmp_path / "report.html"
-    page.write_text(build_report(full_case, folders_of(full_case)), encoding="utf-8")
+    page.write_text(build_report(tiny_case, folders_of(tiny_case)), encoding="utf-8")
     shot = tmp_path / "screenshot.png"
     with tempfile.TemporaryDirectory() as profile:
         proc = subprocess.run(

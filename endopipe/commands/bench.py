@@ -13,7 +13,6 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-from endopipe.pipeline.cache import Manifest
 from endopipe.pipeline.config import load_config
 from endopipe.pipeline.errors import ConfigError, EndopipeError
 from endopipe.pipeline.runner import Pipeline
@@ -172,11 +171,11 @@ def collect_row(
     fresh: set[str] | None = None,
     error: str | None = None,
 ) -> dict:
-    """Metrics from the stage manifests (only stages in `fresh`, when given: after a failure
-    a later stage's folder still holds the previous variant's results); wall = every stage's
-    own time (cached ones included)."""
+    """Metrics from the stage manifests, which the engine finds (only stages in `fresh`, when
+    given: after a failure a later stage's folder still holds the previous variant's results);
+    wall = every stage's own time (cached ones included)."""
     names = [s.name for s in pipe.stages if fresh is None or s.name in fresh]
-    manifests = {n: Manifest.load(case_dir / pipe.folder_name(n)) for n in names}
+    manifests = {n: pipe.manifest(case_dir, n) for n in names}
     summary = {k: (m.summary if m else {}) for k, m in manifests.items()}
     depth = summary.get("depth", {})
     med = depth.get("median_scaled") or {}

@@ -45,27 +45,27 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 import cv2
 import numpy as np
 
-from endopipe.pipeline.errors import EndopipeError, InputError
+from endopipe.pipeline.errors import EndopipeError
 from endopipe.pipeline.stage import write_json
 from endopipe.stages.camera import Camera, backproject
+from endopipe.stages.depth.view import DepthView
+from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.io.colmap_model import (
     OPENGL_FROM_OPENCV,
-    PINHOLE_PARAMS,
-    CameraModel,
     write_ply,
     write_text_model,
     write_transforms_json,
 )
-from endopipe.stages.poses.view import CamerasFile
+from endopipe.stages.poses.view import PosesView
 
 FORMATS = ("nerfstudio", "colmap", "endonerf", "ply")
 ENDONERF_AXES = ("llff", "opengl", "opencv")
@@ -79,6 +79,8 @@ LLFF_COLUMNS: dict[str, tuple[tuple[int, float], ...]] = {
 }
 #: nerfstudio divides depth files by 1000 by default (depth_unit_scale_factor = 1e-3).
 NERFSTUDIO_DEPTH_FACTOR = 1000.0
+
+V = TypeVar("V")
 
 
 @dataclass
@@ -96,91 +98,94 @@ class ExportFrame:
     source_index: int
     image: Path | None
     mask: Path | None
-    depth: Path | None
+    has_depth: bool
     c2w: np.ndarray
 
 
 @dataclass
 class CaseExport:
-    """What every format needs: the camera at image resolution and the registered frames."""
+    """What every format needs: the camera at image resolution and the registered frames, and
+    the views of the stages that wrote them."""
 
     case_dir: Path
     folders: dict[str, Path]
-    cameras: CamerasFile
-    intrinsics: Camera  # at the exported images' resolution
-    camera: CameraModel  # the same, as a COLMAP camera (distortion kept when estimated)
+    poses: PosesView
+    intrinsics: Camera  # at the exported images' resolution, with its lens distortion
     frames: list[ExportFrame]
     skipped: list[int]
+    depth_view: DepthView | None = None
+
+    @property
+    def metric(self) -> bool:
+        return self.poses.metric
 
     @property
     def units(self) -> str:
-        return "mm" if self.cameras.metric else self.cameras.units
+        return "mm" if self.poses.metric else self.poses.file.units
 
     def has_depth(self) -> bool:
-        return any(f.depth is not None for f in self.frames)
+        return any(f.has_depth for f in self.frames)
+
+    def depth(self, frame: ExportFrame) -> np.ndarray:
+        """The frame's z-depth map from 05_depth (only for frames with `has_depth`)."""
+        assert self.depth_view is not None and frame.has_depth
+        return self.depth_view.depth(frame.index)
 
 
-# --- locating a case's artefacts ------------------------------------------------------------------
+# --- reading a case through its stages' views -----------------------------------------------------
 
 
-def find_stage_folders(case_dir: Path) -> dict[str, Path]:
-    """Published stage folders of a case by stage name (`02_poses` -> "poses")."""
-    out: dict[str, Path] = {}
-    for p in sorted(Path(case_dir).iterdir()):
-        m = re.fullmatch(r"\d{2}_([a-z][a-z0-9_]*)", p.name)
-        if m and p.is_dir():
-            out.setdefault(m.group(1), p)
-    return out
+def _view(folders: Mapping[str, Path], stage: str, reader: Callable[[Path], V]) -> V | None:
+    """The view of a stage's published folder, or None when the case has not run it."""
+    folder = folders.get(stage)
+    if folder is None or not Path(folder).is_dir():
+        return None
+    try:
+        return reader(Path(folder))
+    except FileNotFoundError:
+        return None
 
 
-def load_case_export(case_dir: Path, folders: dict[str, Path] | None = None) -> CaseExport:
+def load_case_export(case_dir: Path, folders: Mapping[str, Path]) -> CaseExport:
+    """The case's registered frames, read through the stage views; `folders` maps a stage name
+    to its published folder (the engine's `Pipeline.folders`)."""
     case_dir = Path(case_dir)
-    folders = dict(folders) if folders is not None else find_stage_folders(case_dir)
-    poses_dir = folders.get("poses")
-    if poses_dir is None or not (poses_dir / "cameras.json").is_file():
+    folders = {name: Path(f) for name, f in folders.items()}
+    poses = _view(folders, "poses", PosesView)
+    if poses is None:
         raise EndopipeError(
             f"{case_dir.name} has no camera poses (02_poses/cameras.json); run "
             "`endopipe run INPUT --until poses` first"
         )
-    cams = CamerasFile.model_validate_json((poses_dir / "cameras.json").read_text())
-    ingest_dir = folders.get("ingest")
-    entries: dict[int, dict] = {}
-    size = (cams.width, cams.height)
-    if ingest_dir is not None and (ingest_dir / "frames.json").is_file():
-        data = json.loads((ingest_dir / "frames.json").read_text())
-        entries = {int(f["index"]): f for f in data.get("frames", [])}
-        size = (int(data.get("width", cams.width)), int(data.get("height", cams.height)))
-    k = cams.intrinsics()
+    ingest = _view(folders, "ingest", IngestView)
+    depth = _view(folders, "depth", DepthView)
+    cams = poses.file
+    size = (ingest.width, ingest.height) if ingest is not None else (cams.width, cams.height)
+    k = poses.intrinsics
     if (k.width, k.height) != size:
         k = k.scaled(*size)
-    if cams.params and cams.model in PINHOLE_PARAMS:
-        camera = CameraModel(cams.model, cams.width, cams.height, list(cams.params))
-        camera = camera.scaled(*size)
-    else:
-        camera = CameraModel.pinhole(k)
-    depth_dir = folders.get("depth")
+    with_depth = set(depth.indices) if depth is not None else set()
     frames, skipped = [], []
     for fp in cams.frames:
         if not fp.registered or fp.c2w is None:
             skipped.append(fp.index)
             continue
-        e = entries.get(fp.index)
-        image = ingest_dir / e["file"] if e and ingest_dir is not None else None
-        mask = ingest_dir / e["mask"] if e and e.get("mask") and ingest_dir is not None else None
-        depth = depth_dir / "depth" / f"{fp.index:06d}.npy" if depth_dir is not None else None
+        kept = ingest is not None and ingest.has_frame(fp.index)
+        image = ingest.image_path(fp.index) if kept else None
+        mask = ingest.mask_path(fp.index) if kept else None
         frames.append(
             ExportFrame(
                 index=fp.index,
-                source_index=int(e["source_index"]) if e else fp.index,
+                source_index=ingest.frame(fp.index).source_index if kept else fp.index,
                 image=image if image is not None and image.is_file() else None,
                 mask=mask if mask is not None and mask.is_file() else None,
-                depth=depth if depth is not None and depth.is_file() else None,
+                has_depth=fp.index in with_depth,
                 c2w=np.asarray(fp.c2w, dtype=np.float64),
             )
         )
     if not frames:
         raise EndopipeError(f"{case_dir.name}: no registered frame in 02_poses/cameras.json")
-    return CaseExport(case_dir, folders, cams, k, camera, frames, skipped)
+    return CaseExport(case_dir, folders, poses, k, frames, skipped, depth)
 
 
 # --- the entry point ----------------------------------------------------------------------------
@@ -191,13 +196,14 @@ def export_case(
     fmt: str,
     out: Path | None = None,
     *,
-    folders: dict[str, Path] | None = None,
+    folders: Mapping[str, Path],
     symlink: bool = False,
     endonerf_axes: str = "llff",
     point_stride: int = 4,
     max_points: int = 2_000_000,
 ) -> ExportResult:
-    """Write `case_dir` in format `fmt` to `out` (default `<case>/exports/<fmt>`).
+    """Write `case_dir` in format `fmt` to `out` (default `<case>/exports/<fmt>`). `folders`:
+    each stage's published folder by stage name (`Pipeline.folders`: the engine names them).
 
     The folder is written beside `out` and renamed into place; an existing `out` is replaced
     only when it is an earlier endopipe export (it holds export.json), never a foreign folder.
@@ -237,7 +243,7 @@ def export_case(
                 "source_indices": [f.source_index for f in case.frames],
                 "skipped_unregistered": case.skipped,
                 "units": case.units,
-                "metric": case.cameras.metric,
+                "metric": case.metric,
                 "intrinsics": case.intrinsics.model_dump(exclude_none=True),
                 "notes": result.notes,
                 "files": result.files,
@@ -292,23 +298,22 @@ def write_nerfstudio(case: CaseExport, out: Path, *, symlink: bool = False) -> E
     extra: dict = {
         "endopipe": {
             "units": case.units,
-            "metric": case.cameras.metric,
+            "metric": case.metric,
             "convention": "transform_matrix: OpenGL camera-to-world (x right, y up, z back)",
         }
     }
-    points = case.folders.get("poses")
-    if points is not None and (points / "points.ply").is_file():
-        shutil.copy2(points / "points.ply", out / "sparse_pc.ply")
+    if case.poses.points_path.is_file():
+        shutil.copy2(case.poses.points_path, out / "sparse_pc.ply")
         extra["ply_file_path"] = "sparse_pc.ply"
-    write_transforms_json(out / "transforms.json", case.camera, frames, extra=extra)
+    write_transforms_json(out / "transforms.json", case.intrinsics, frames, extra=extra)
     if case.has_depth():
         data = json.loads((out / "transforms.json").read_text())
         (out / "depth").mkdir()
         written = 0
         for f, entry in zip(case.frames, data["frames"], strict=True):
-            if f.depth is None:
+            if not f.has_depth:
                 continue
-            d = np.load(f.depth).astype(np.float32) * NERFSTUDIO_DEPTH_FACTOR
+            d = case.depth(f).astype(np.float32) * NERFSTUDIO_DEPTH_FACTOR
             np.save(out / "depth" / f"{f.index:06d}.npy", d)
             entry["depth_file_path"] = f"depth/{f.index:06d}.npy"
             written += 1
@@ -351,15 +356,14 @@ def write_colmap(case: CaseExport, out: Path, *, symlink: bool = False) -> Expor
     for f in case.frames:
         _place(f.image, out / "images" / f.image.name, symlink)  # type: ignore[union-attr]
     sparse = out / "sparse" / "0"
-    src = case.folders.get("poses")
-    src = src / "sparse" if src is not None else None
+    src = case.poses.sparse_dir
     model_files = [
         src / f"{name}.{ext}"
         for name in ("cameras", "images", "points3D")
         for ext in ("txt", "bin")
-        if src is not None and (src / f"{name}.{ext}").is_file()
+        if (src / f"{name}.{ext}").is_file()
     ]
-    if src is not None and _colmap_model_complete(src):
+    if _colmap_model_complete(src):
         sparse.mkdir(parents=True)
         for p in model_files:
             shutil.copy2(p, sparse / p.name)
@@ -367,7 +371,7 @@ def write_colmap(case: CaseExport, out: Path, *, symlink: bool = False) -> Expor
     else:
         write_text_model(
             sparse,
-            case.camera,
+            case.intrinsics,
             {f.image.name: f.c2w for f in case.frames},  # type: ignore[union-attr]
         )
         notes.append("sparse model written from cameras.json (no tracks: empty points3D.txt)")
@@ -379,48 +383,6 @@ def _colmap_model_complete(folder: Path) -> bool:
         any((folder / f"{name}.{ext}").is_file() for ext in ("txt", "bin"))
         for name in ("cameras", "images", "points3D")
     )
-
-
-def qvec_to_rotmat(q: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) -> rotation matrix."""
-    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def read_colmap_text(folder: Path) -> tuple[CameraModel, dict[str, np.ndarray]]:
-    """A COLMAP text model (one camera) back to a CameraModel and OpenCV c2w by image name."""
-    folder = Path(folder)
-    cam_lines = [
-        ln.split() for ln in (folder / "cameras.txt").read_text().splitlines() if ln.strip()
-    ]
-    cam_lines = [c for c in cam_lines if not c[0].startswith("#")]
-    if len(cam_lines) != 1:
-        raise InputError(f"{folder}/cameras.txt: expected one camera, found {len(cam_lines)}")
-    _, model, w, h, *params = cam_lines[0]
-    camera = CameraModel(model, int(w), int(h), [float(p) for p in params])
-    poses = {}
-    lines = [ln for ln in (folder / "images.txt").read_text().splitlines()]
-    body = [ln for ln in lines if not ln.startswith("#")]
-    for i in range(0, len(body), 2):
-        parts = body[i].split()
-        if len(parts) < 10:
-            continue
-        q = np.array([float(v) for v in parts[1:5]])
-        t = np.array([float(v) for v in parts[5:8]])
-        w2c = np.eye(4)
-        w2c[:3, :3] = qvec_to_rotmat(q)
-        w2c[:3, 3] = t
-        poses[" ".join(parts[9:])] = np.linalg.inv(w2c)
-    return camera, poses
-
-
-# --- endonerf -------------------------------------------------------------------------------------
 
 
 def llff_matrix(c2w: np.ndarray, hwf: tuple[float, float, float], axes: str = "llff") -> np.ndarray:
@@ -444,10 +406,10 @@ def c2w_from_llff(m: np.ndarray, axes: str = "llff") -> np.ndarray:
 
 def depth_bounds(case: CaseExport) -> tuple[list[tuple[float, float]], str]:
     """(near, far) per frame and where they came from."""
-    if case.has_depth() and all(f.depth is not None for f in case.frames):
+    if case.has_depth() and all(f.has_depth for f in case.frames):
         out = []
         for f in case.frames:
-            d = np.load(f.depth)  # type: ignore[arg-type]
+            d = case.depth(f)
             z = d[(d > 0) & np.isfinite(d)]
             out.append(
                 (float(np.percentile(z, 0.1)), float(np.percentile(z, 99.9)))
@@ -458,7 +420,7 @@ def depth_bounds(case: CaseExport) -> tuple[list[tuple[float, float]], str]:
         if good:
             fill = (min(b[0] for b in good), max(b[1] for b in good))
             return [b if np.isfinite(b[0]) else fill for b in out], "depth maps"
-    pts = _sparse_points(case)
+    pts = case.poses.points()
     if len(pts) >= 20:
         out = []
         for f in case.frames:
@@ -483,22 +445,12 @@ def depth_bounds(case: CaseExport) -> tuple[list[tuple[float, float]], str]:
     return [(0.01 * extent, 2.0 * extent)] * len(case.frames), "camera path extent (guess)"
 
 
-def _sparse_points(case: CaseExport) -> np.ndarray:
-    poses = case.folders.get("poses")
-    if poses is None or not (poses / "points.ply").is_file():
-        return np.zeros((0, 3))
-    import trimesh
-
-    cloud = trimesh.load(poses / "points.ply", process=False)
-    return np.asarray(getattr(cloud, "vertices", np.zeros((0, 3))), dtype=np.float64)
-
-
 def _centerline_radius(case: CaseExport) -> float | None:
-    folder = case.folders.get("centerline")
-    if folder is None or not (folder / "centerline.json").is_file():
-        return None
-    radius = json.loads((folder / "centerline.json").read_text()).get("radius") or []
-    return float(np.median(radius)) if radius else None
+    from endopipe.stages.centerline.view import CenterlineView
+
+    view = _view(case.folders, "centerline", CenterlineView)
+    radius = view.radius if view is not None else []
+    return float(np.median(radius)) if len(radius) else None
 
 
 def endonerf_depth_scale(max_depth: float) -> float:
@@ -524,8 +476,8 @@ def write_endonerf(case: CaseExport, out: Path, *, axes: str = "llff") -> Export
             f"LLFF assumes a centred principal point; this camera's is ({k.cx:.1f}, {k.cy:.1f}) "
             f"px, the image centre ({cx0:.1f}, {cy0:.1f}) px"
         )
-    if case.camera.model not in ("PINHOLE", "SIMPLE_PINHOLE"):
-        notes.append(f"lens distortion of the {case.camera.model} camera is not representable")
+    if case.intrinsics.distorted:
+        notes.append(f"lens distortion of the {case.intrinsics.model} lens is not representable")
     bounds, source = depth_bounds(case)
     notes.append(f"near/far bounds from {source}")
     hwf = (float(k.height), float(k.width), float(k.fx))
@@ -546,7 +498,7 @@ def write_endonerf(case: CaseExport, out: Path, *, axes: str = "llff") -> Export
     files = ["poses_bounds.npy", "images", "masks"]
     scale = None
     if case.has_depth():
-        depths = {f.index: np.load(f.depth) for f in case.frames if f.depth is not None}
+        depths = {f.index: case.depth(f) for f in case.frames if f.has_depth}
         deepest = max((float(np.nanmax(d)) for d in depths.values() if d.size), default=0.0)
         scale = endonerf_depth_scale(deepest)
         (out / "depth").mkdir()
@@ -595,9 +547,9 @@ def fuse_depth(
     """World points (N, 3) and colours (N, 3 uint8) back-projected from the depth maps."""
     xyz, rgb = [], []
     for f in case.frames:
-        if f.depth is None:
+        if not f.has_depth:
             continue
-        d = np.load(f.depth).astype(np.float64)
+        d = case.depth(f).astype(np.float64)
         h, w = d.shape
         k = (
             case.intrinsics
@@ -632,17 +584,19 @@ def fuse_depth(
 def voxel_thin(
     points: np.ndarray, colours: np.ndarray, max_points: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One point per voxel (the first), the voxel grown until at most `max_points` remain."""
+    """open3d's voxel down-sampling (one point per voxel: the mean of its points and colours),
+    the voxel grown until at most `max_points` remain."""
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
+    cloud.colors = o3d.utility.Vector3dVector(np.asarray(colours, np.float64) / 255.0)
     extent = float(np.ptp(points, axis=0).max()) or 1.0
     size = extent / max(np.cbrt(max_points), 1.0) / 4
     for _ in range(40):
-        q = np.floor((points - points.min(0)) / size).astype(np.int64)
-        dims = q.max(0) + 1
-        key = (q[:, 0] * dims[1] + q[:, 1]) * dims[2] + q[:, 2]
-        _, first = np.unique(key, return_index=True)
-        if len(first) <= max_points:
-            first.sort()
-            return points[first], colours[first]
+        thin = cloud.voxel_down_sample(size)
+        if len(thin.points) <= max_points:
+            rgb = np.round(np.asarray(thin.colors) * 255.0).clip(0, 255).astype(np.uint8)
+            return np.asarray(thin.points), rgb
         size *= 1.25
     return points[:max_points], colours[:max_points]
 
@@ -651,9 +605,11 @@ def write_ply_export(
     case: CaseExport, out: Path, *, stride: int = 4, max_points: int = 2_000_000
 ) -> ExportResult:
     notes, files = [], []
-    mesh_dir = case.folders.get("mesh")
-    if mesh_dir is not None and (mesh_dir / "mesh.ply").is_file():
-        shutil.copy2(mesh_dir / "mesh.ply", out / "mesh.ply")
+    from endopipe.stages.mesh.view import MeshView
+
+    mesh = _view(case.folders, "mesh", MeshView)
+    if mesh is not None and mesh.mesh_path.is_file():
+        shutil.copy2(mesh.mesh_path, out / "mesh.ply")
         files.append("mesh.ply")
     else:
         notes.append("no 06_mesh/mesh.ply")

@@ -1,8 +1,8 @@
-"""Pixels <-> rays <-> points for a `Camera`, with its lens distortion: written once.
+"""Points -> pixels for a `Camera`, with its lens distortion, and the lens model itself: written
+once. (Pixels -> rays -> points is `rays.py`.)
 
-Every function takes numpy arrays, and `project` / `distort_normalised` take torch tensors too
-(the NeRF's L_geo warps project on the training device). A ray's direction is returned with
-camera-frame z = 1, so a ray parameter is a z-depth (DESIGN §4).
+`project` and `distort_normalised` take numpy arrays or torch tensors (the NeRF's L_geo warps
+project on the training device).
 """
 
 from __future__ import annotations
@@ -15,6 +15,11 @@ import numpy as np
 from endopipe.stages.camera.model import Camera
 
 Array = Any  # numpy array or torch tensor
+
+#: OpenCV's iterative undistortion: at most this many iterations, or until the point it finds
+#: re-distorts to within UNDISTORT_EPS (normalised units, ~1e-10 px at the focal lengths here).
+UNDISTORT_ITER = 100
+UNDISTORT_EPS = 1e-12
 
 
 def _stack(parts: list[Array], axis: int = -1) -> Array:
@@ -73,68 +78,55 @@ def undistort_normalised(camera: Camera, xy_d: np.ndarray) -> np.ndarray:
         return xy_d
     pts = xy_d.reshape(-1, 1, 2)
     eye, coeffs = np.eye(3), camera.coefficients()
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, UNDISTORT_ITER, UNDISTORT_EPS)
     if camera.model == "fisheye":
-        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
         out = cv2.fisheye.undistortPoints(pts, eye, coeffs, criteria=criteria)
     else:
-        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
-        out = cv2.undistortPointsIter(pts, eye, coeffs, None, None, criteria)
+        out = cv2.undistortPoints(pts, eye, coeffs, criteria=criteria)
     return out.reshape(xy_d.shape)
 
 
-def pixel_directions(camera: Camera, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Camera-frame ray directions (..., 3) with z = 1 through pixel coordinates (u, v)."""
-    u, v = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)
-    xy = np.stack([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy], -1)
-    xy = undistort_normalised(camera, xy)
-    return np.concatenate([xy, np.ones_like(xy[..., :1])], -1)
-
-
-def image_directions(camera: Camera) -> np.ndarray:
-    """Camera-frame directions (H, W, 3), z = 1, through every pixel centre of the image."""
-    return pixel_directions(camera, *pixel_grid(camera.width, camera.height))
-
-
-def camera_rays(camera: Camera, c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """World-frame rays through every pixel: origins and directions (H*W, 3), direction z = 1 in
-    the camera frame (a ray parameter is a z-depth)."""
-    d = image_directions(camera).reshape(-1, 3) @ np.asarray(c2w)[:3, :3].T
-    o = np.broadcast_to(np.asarray(c2w)[:3, 3], d.shape)
-    return o, d
-
-
-def project_camera(camera: Camera, points_cam: Array) -> tuple[Array, Array]:
-    """Camera-frame points (N, 3) -> (pixel coordinates (N, 2), z-depths (N,)); numpy or torch.
-    Points at z <= 0 get meaningless pixels: mask them with z."""
+def project_camera(
+    camera: Camera, points_cam: Array, near: float | None = None
+) -> tuple[Array, Array]:
+    """Camera-frame points (..., 3) -> (pixel coordinates (..., 2), z-depths (...)); numpy or
+    torch. Points at z <= 0 get meaningless pixels: mask them with z. `near`: divide by
+    max(z, near) instead (points behind the camera then land far outside the image)."""
     z = points_cam[..., 2]
-    if isinstance(z, np.ndarray):
+    if near is not None:
+        safe = np.maximum(z, near) if isinstance(z, np.ndarray) else z.clamp_min(near)
+    elif isinstance(z, np.ndarray):
         safe = np.where(np.abs(z) < 1e-12, 1e-12, z)
     else:
         safe = z.where(z.abs() >= 1e-12, z.new_full((), 1e-12))
-    xy = distort_normalised(camera, _stack([points_cam[..., 0] / safe, points_cam[..., 1] / safe]))
+    x, y = points_cam[..., 0], points_cam[..., 1]
+    if not camera.distorted:  # f x / z + c, in this order: the numbers endopipe always had
+        return _stack([camera.fx * x / safe + camera.cx, camera.fy * y / safe + camera.cy]), z
+    xy = distort_normalised(camera, _stack([x / safe, y / safe]))
     uv = _stack([camera.fx * xy[..., 0] + camera.cx, camera.fy * xy[..., 1] + camera.cy])
     return uv, z
 
 
 def world_to_camera(points_world: Array, c2w: Array) -> Array:
-    """World points (N, 3) into the frame of the camera at c2w (numpy or torch)."""
+    """World points (N, 3) into the frame of the camera at c2w: (4, 4), or one camera per point
+    (N, 4, 4); numpy or torch."""
     if isinstance(points_world, np.ndarray):
-        w2c = np.linalg.inv(np.asarray(c2w, dtype=np.float64))
+        c2w = np.asarray(c2w, dtype=np.float64)
+        if c2w.ndim == 3:
+            return np.einsum("bji,bj->bi", c2w[:, :3, :3], points_world - c2w[:, :3, 3])
+        w2c = np.linalg.inv(c2w)
         return points_world @ w2c[:3, :3].T + w2c[:3, 3]
+    if c2w.dim() == 3:
+        import torch
+
+        return torch.einsum("bji,bj->bi", c2w[:, :3, :3], points_world - c2w[:, :3, 3])
     R, t = c2w[:3, :3], c2w[:3, 3]
     return (points_world - t) @ R
 
 
-def project(camera: Camera, points_world: Array, c2w: Array) -> tuple[Array, Array]:
-    """World points (N, 3) -> (pixel coordinates (N, 2), z-depths (N,)) in the camera c2w."""
-    return project_camera(camera, world_to_camera(points_world, c2w))
-
-
-def backproject(camera: Camera, depth: np.ndarray, c2w: np.ndarray | None = None) -> np.ndarray:
-    """HxW z-depth -> HxWx3 points (camera frame, or world frame when c2w is given)."""
-    if depth.shape != (camera.height, camera.width):
-        camera = camera.scaled(depth.shape[1], depth.shape[0])
-    pts = image_directions(camera) * depth[..., None]
-    if c2w is not None:
-        pts = pts @ np.asarray(c2w)[:3, :3].T + np.asarray(c2w)[:3, 3]
-    return pts
+def project(
+    camera: Camera, points_world: Array, c2w: Array, near: float | None = None
+) -> tuple[Array, Array]:
+    """World points (N, 3) -> (pixel coordinates (N, 2), z-depths (N,)) in the camera c2w
+    ((4, 4) or (N, 4, 4)); see `project_camera` for `near`."""
+    return project_camera(camera, world_to_camera(points_world, c2w), near)

@@ -1,48 +1,38 @@
-"""depth: a z-depth map per registered frame from the trained field, evaluated when GT exists."""
+"""depth: a z-depth map per registered frame from the trained field, evaluated when GT exists.
+
+config.py holds the settings, evaluate.py the comparison with the ground truth, preview.py the
+colour and error maps of preview.mp4, view.py the only reader of 05_depth.
+"""
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Literal
 
 import cv2
 import numpy as np
-from pydantic import Field
 
-from endopipe.pipeline.stage import Stage, StageConfig, StageContext, Summary, write_json
-from endopipe.stages.io.ground_truth import GroundTruthSource, open_ground_truth
-from endopipe.stages.io.video_writer import write_mp4
-from endopipe.stages.metrics.depth import (
-    affine_fit,
-    affine_sequence_metrics,
-    depth_sequence_metrics,
-    image_metrics,
+from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
+from endopipe.stages.centerline.view import CenterlineView
+from endopipe.stages.depth.config import DepthConfig
+from endopipe.stages.depth.evaluate import evaluate, ground_truth_depths
+from endopipe.stages.depth.preview import write_preview
+from endopipe.stages.depth.view import (
+    DEPTH_DIR,
+    METRICS_FILE,
+    OPACITY_DIR,
+    PREVIEW_FILE,
+    DepthView,
+    frame_file,
 )
+from endopipe.stages.ingest.view import IngestView
+from endopipe.stages.io.ground_truth import open_ground_truth
+from endopipe.stages.nerf.view import NerfView
+from endopipe.stages.poses.view import PosesView
+
+__all__ = ["Depth", "DepthConfig", "DepthSummary", "DepthView"]
 
 PNG_MAX = 65535
-
-
-class DepthConfig(StageConfig):
-    renderer: Literal["baked", "field"] = Field(
-        "baked",
-        description="baked: ray-cast an iso-surface baked once from the field's density (fast); "
-        "field: volume-render the trained field at every sample (exact expected depth, slow).",
-    )
-    bake_voxels_per_radius: int = Field(
-        24, ge=4, le=256, description="Baked surface: grid nodes per lumen radius."
-    )
-    bake_density_level: float | None = Field(
-        None,
-        gt=0,
-        description="Baked surface: density iso-level, per lumen radius (None: calibrated so "
-        "that the baked surface passes through the field's rendered surface).",
-    )
-    preview: bool = Field(True, description="Write preview.mp4 (RGB | depth | error).")
-    preview_fps: int = Field(10, ge=1, description="Frame rate of preview.mp4.")
-    colour: bool = Field(
-        True, description="Render colour too (needed for PSNR/SSIM on held-out frames)."
-    )
 
 
 class DepthSummary(Summary):
@@ -60,21 +50,6 @@ class DepthSummary(Summary):
     heldout_ssim: float | None = None
 
 
-class DepthView:
-    """Typed access to 05_depth: depth maps by endopipe frame index."""
-
-    def __init__(self, folder: Path) -> None:
-        self.folder = folder
-        self.indices = sorted(int(p.stem) for p in (folder / "depth").glob("*.npy"))
-
-    def depth(self, index: int) -> np.ndarray:
-        return np.load(self.folder / "depth" / f"{index:06d}.npy")
-
-    def opacity(self, index: int) -> np.ndarray | None:
-        path = self.folder / "opacity" / f"{index:06d}.npy"
-        return np.load(path) if path.is_file() else None
-
-
 class Depth(Stage):
     """Render every registered frame's depth (z, world units) and opacity; evaluate against GT."""
 
@@ -88,13 +63,13 @@ class Depth(Stage):
         return DepthView(folder)
 
     def run(self, ctx: StageContext) -> DepthSummary:
-        from endopipe.stages.nerf.render import load_model
-        from endopipe.stages.nerf.stage import load_prior
-
         cfg: DepthConfig = ctx.config  # type: ignore[assignment]
-        ingest, poses = ctx.input("ingest"), ctx.input("poses")
-        model = load_model(ctx.input_dir("nerf"))
-        prior = load_prior(ctx.input("centerline"))
+        ingest: IngestView = ctx.input("ingest")
+        poses: PosesView = ctx.input("poses")
+        centerline: CenterlineView = ctx.input("centerline")
+        nerf: NerfView = ctx.input("nerf")
+        model = nerf.model()
+        prior = centerline.prior()
         k = poses.intrinsics
         if (k.width, k.height) != (ingest.width, ingest.height):
             k = k.scaled(ingest.width, ingest.height)
@@ -102,7 +77,7 @@ class Depth(Stage):
         renderer = make_renderer(cfg, model, prior, [poses.c2w[i] for i in poses.registered], k)
         bake_s = time.perf_counter() - t_bake
         heldout = set(getattr(model, "meta", {}).get("heldout", []))
-        for sub in ("depth", "opacity"):
+        for sub in (DEPTH_DIR, OPACITY_DIR):
             (ctx.out / sub).mkdir()
         depths, rgbs, times = {}, {}, []
         with ctx.progress("depth", total=len(poses.registered)) as advance:
@@ -111,20 +86,20 @@ class Depth(Stage):
                 out = renderer(k, poses.c2w[i], i, colour=cfg.colour and i in heldout)
                 times.append(time.perf_counter() - t0)
                 depths[i] = out["depth"].astype(np.float32)
-                np.save(ctx.out / "depth" / f"{i:06d}.npy", depths[i])
-                np.save(ctx.out / "opacity" / f"{i:06d}.npy", out["opacity"].astype(np.float32))
+                np.save(ctx.out / DEPTH_DIR / frame_file(i), depths[i])
+                np.save(ctx.out / OPACITY_DIR / frame_file(i), out["opacity"].astype(np.float32))
                 if "rgb" in out:
                     rgbs[i] = out["rgb"]
                 advance(info=f"{1000 * times[-1]:.0f} ms/frame")
-        png_scale = write_depth_pngs(ctx.out / "depth", depths)
+        png_scale = write_depth_pngs(ctx.out / DEPTH_DIR, depths)
         gt = open_ground_truth(Path(ctx.case.gt_dir)) if ctx.case.gt_dir else None
         gt_depths = ground_truth_depths(gt, ingest, list(depths))
         metrics = evaluate(gt, ingest, depths, gt_depths, rgbs)
-        write_json(ctx.out / "metrics.json", metrics)
+        write_json(ctx.out / METRICS_FILE, metrics)
         if cfg.preview:
             affine = metrics.get("gt_kind") == "relative"
             write_preview(
-                ctx.out / "preview.mp4", ingest, depths, gt_depths, cfg.preview_fps, affine
+                ctx.out / PREVIEW_FILE, ingest, depths, gt_depths, cfg.preview_fps, affine
             )
         ms = 1000 * float(np.median(times[1:] if len(times) > 1 else times))
         ctx.log(
@@ -174,104 +149,5 @@ def write_depth_pngs(folder: Path, depths: dict[int, np.ndarray]) -> float:
     scale = max(top, 1e-6) / PNG_MAX
     for i, d in depths.items():
         png = np.clip(np.round(d / scale), 0, PNG_MAX).astype(np.uint16)
-        cv2.imwrite(str(folder / f"{i:06d}.png"), png)
+        cv2.imwrite(str(folder / frame_file(i, ".png")), png)
     return scale
-
-
-def ground_truth_depths(
-    gt: GroundTruthSource | None, ingest, indices: list[int]
-) -> dict[int, np.ndarray]:
-    """GT depth per frame at the working resolution (nearest-neighbour, no blending of edges)."""
-    if gt is None:
-        return {}
-    out = {}
-    for i in indices:
-        d = gt.depth(ingest.frames[i].source_index)
-        if d is None:
-            continue
-        if d.shape != (ingest.height, ingest.width):
-            d = cv2.resize(d, (ingest.width, ingest.height), interpolation=cv2.INTER_NEAREST)
-        out[i] = d.astype(np.float32)
-    return out
-
-
-def evaluate(
-    gt: GroundTruthSource | None,
-    ingest,
-    depths: dict[int, np.ndarray],
-    gt_depths: dict[int, np.ndarray],
-    rgbs: dict[int, np.ndarray],
-) -> dict:
-    """DESIGN §6: both depth protocols per frame and mean; PSNR / SSIM on held-out frames."""
-    metrics: dict = {}
-    fov = ingest.fov() > 0
-    if gt_depths:
-        ids = sorted(gt_depths)
-        kind = getattr(gt, "kind", "exact")
-        # A relative ground truth (an affine proxy of depth) supports no metric protocol.
-        sequence = affine_sequence_metrics if kind == "relative" else depth_sequence_metrics
-        metrics.update(
-            sequence([depths[i] for i in ids], [gt_depths[i] for i in ids], [fov] * len(ids), ids)
-        )
-        metrics["gt_kind"] = kind
-    if rgbs:
-        ids = sorted(rgbs)
-        per = {
-            i: image_metrics(
-                rgbs[i], ingest.image(i).astype(np.float32) / 255.0, ingest.mask(i) > 127
-            )
-            for i in ids
-        }
-        metrics["heldout_frames"] = ids
-        metrics["heldout_psnr"] = float(np.mean([p["psnr"] for p in per.values()]))
-        metrics["heldout_ssim"] = float(np.mean([p["ssim"] for p in per.values()]))
-        metrics["per_frame_image"] = {str(i): per[i] for i in ids}
-    return metrics
-
-
-def colourise(depth: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """Depth as a turbo colour map (RGB uint8), invalid pixels black."""
-    x = np.clip((depth - lo) / max(hi - lo, 1e-9), 0, 1)
-    rgb = cv2.cvtColor(
-        cv2.applyColorMap((x * 255).astype(np.uint8), cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB
-    )
-    rgb[depth <= 0] = 0
-    return rgb
-
-
-def error_map(depth: np.ndarray, gt: np.ndarray, affine: bool = False) -> np.ndarray:
-    """Per-pixel relative error after median scaling (or, for a relative ground truth, after
-    the least-squares scale and shift), 0..0.3 mapped to the colour map."""
-    valid = (gt > 0) & (depth > 0)
-    err = np.zeros_like(depth)
-    if valid.sum() > 1:
-        p, g = depth[valid].astype(np.float64), gt[valid].astype(np.float64)
-        if affine:
-            s, b = affine_fit(p, g)
-        else:
-            s, b = np.median(g) / np.median(p), 0.0
-        err[valid] = np.abs(p * s + b - g) / g
-    out = colourise(err, 0.0, 0.3)
-    out[~valid] = 0
-    return out
-
-
-def write_preview(
-    path: Path,
-    ingest,
-    depths: dict[int, np.ndarray],
-    gt_depths: dict[int, np.ndarray],
-    fps: int,
-    affine: bool = False,
-) -> None:
-    """RGB | depth | error (when GT exists), one frame per registered frame."""
-    all_d = np.concatenate([d[d > 0] for d in depths.values()]) if depths else np.ones(1)
-    lo, hi = np.percentile(all_d, [2, 98]) if all_d.size else (0.0, 1.0)
-    frames = []
-    for i, d in depths.items():
-        panels = [ingest.image(i), colourise(d, lo, hi)]
-        if i in gt_depths:
-            panels.append(error_map(d, gt_depths[i], affine))
-        frames.append(np.concatenate(panels, axis=1))
-    if frames:
-        write_mp4(path, frames, fps)

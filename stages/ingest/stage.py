@@ -2,68 +2,28 @@
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
-from pydantic import Field
 
 from endopipe.pipeline.errors import InputError
-from endopipe.pipeline.stage import Stage, StageConfig, StageContext, Summary, write_json
+from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
 from endopipe.stages.camera import Camera
-from endopipe.stages.ingest.frame_quality import frame_difference, sharpness
-from endopipe.stages.ingest.masks import (
-    FovConfig,
-    SpecularConfig,
-    combine,
-    fov_mask_for_sequence,
-    specular_mask,
+from endopipe.stages.ingest.config import IngestConfig
+from endopipe.stages.ingest.masks import combine, fov_mask_for_sequence, specular_mask
+from endopipe.stages.ingest.selection import select_frames
+from endopipe.stages.ingest.view import (
+    FOV_FILE,
+    FRAMES_FILE,
+    FrameEntry,
+    FramesFile,
+    IngestView,
+    SourceInfo,
 )
-from endopipe.stages.io.sources import Frame, InputSource, open_input
+from endopipe.stages.io.sources import InputSource, open_input
 
-
-class IngestConfig(StageConfig):
-    stride: int = Field(1, ge=1, description="Keep every n-th frame of the input.")
-    max_frames: int | None = Field(
-        None, ge=1, description="Keep at most this many frames (after stride and filtering)."
-    )
-    start_s: float = Field(0.0, ge=0, description="Skip video before this time (seconds).")
-    end_s: float | None = Field(None, gt=0, description="Stop reading the video at this time.")
-    max_size: int = Field(
-        320,
-        ge=32,
-        description="Working resolution: the longer image side, in pixels (downscale only).",
-    )
-    min_frames: int = Field(3, ge=2, description="Fewer usable frames than this is an error.")
-    drop_duplicates: bool = Field(
-        True, description="Drop frames nearly identical to the last kept one."
-    )
-    duplicate_threshold: float = Field(
-        0.0015,
-        ge=0,
-        description="Mean absolute grey difference (0..1) under which a frame is a duplicate.",
-    )
-    drop_blurred: bool = Field(
-        True, description="Drop frames much blurrier than the sequence median."
-    )
-    blur_rel_threshold: float = Field(
-        0.35,
-        ge=0,
-        le=1,
-        description="A frame is blurred when its sharpness < this x the median sharpness.",
-    )
-    black_level: float = Field(
-        8.0, ge=0, description="A frame whose 99th-percentile grey level is under this is blank."
-    )
-    fov: FovConfig = Field(
-        default_factory=FovConfig, description="Field-of-view (scope border) mask."
-    )
-    specular: SpecularConfig = Field(
-        default_factory=SpecularConfig, description="Specular-highlight mask."
-    )
-    contact_sheet_frames: int = Field(16, ge=1, description="Frames shown in contact_sheet.png.")
+__all__ = ["FrameEntry", "Ingest", "IngestConfig", "IngestSummary", "IngestView"]
 
 
 class IngestSummary(Summary):
@@ -78,42 +38,6 @@ class IngestSummary(Summary):
     mean_specular_fraction: float
     has_intrinsics: bool
     has_ground_truth: bool
-
-
-@dataclass
-class FrameEntry:
-    index: int
-    source_index: int
-    time_s: float | None
-    file: str
-    mask: str
-
-
-class IngestView:
-    """Typed access to 01_ingest for downstream stages."""
-
-    def __init__(self, folder: Path) -> None:
-        self.folder = folder
-        data = json.loads((folder / "frames.json").read_text())
-        self.frames = [FrameEntry(**f) for f in data["frames"]]
-        self.intrinsics = Camera(**data["intrinsics"]) if data["intrinsics"] else None
-        self.width: int = data["width"]
-        self.height: int = data["height"]
-        self.gt_dir = Path(data["gt_dir"]) if data.get("gt_dir") else None
-
-    def image(self, i: int) -> np.ndarray:
-        """RGB uint8 of frame i (endopipe index)."""
-        return cv2.cvtColor(cv2.imread(str(self.folder / self.frames[i].file)), cv2.COLOR_BGR2RGB)
-
-    def image_path(self, i: int) -> Path:
-        return self.folder / self.frames[i].file
-
-    def mask(self, i: int) -> np.ndarray:
-        """uint8 mask, 255 = usable (inside the field of view, not specular)."""
-        return cv2.imread(str(self.folder / self.frames[i].mask), cv2.IMREAD_GRAYSCALE)
-
-    def fov(self) -> np.ndarray:
-        return cv2.imread(str(self.folder / "fov_mask.png"), cv2.IMREAD_GRAYSCALE)
 
 
 class Ingest(Stage):
@@ -141,7 +65,7 @@ class Ingest(Stage):
         fov, fov_shape = fov_mask_for_sequence(images[:: max(1, len(images) // 12)], cfg.fov)
         (ctx.out / "frames").mkdir()
         (ctx.out / "masks").mkdir()
-        cv2.imwrite(str(ctx.out / "fov_mask.png"), fov)
+        cv2.imwrite(str(ctx.out / FOV_FILE), fov)
         entries, spec_fracs = [], []
         with ctx.progress("masks", total=len(images)) as advance:
             for i, (frame, rgb) in enumerate(zip(frames, images, strict=True)):
@@ -152,24 +76,26 @@ class Ingest(Stage):
                 cv2.imwrite(str(ctx.out / "masks" / name), combine(fov, spec))
                 entries.append(
                     FrameEntry(
-                        i, frame.source_index, frame.time_s, f"frames/{name}", f"masks/{name}"
+                        index=i,
+                        source_index=frame.source_index,
+                        time_s=frame.time_s,
+                        file=f"frames/{name}",
+                        mask=f"masks/{name}",
                     )
                 )
                 advance()
         intrinsics = source_intrinsics(source, frames[0].rgb.shape, size)
-        write_json(
-            ctx.out / "frames.json",
-            {
-                "frames": [e.__dict__ for e in entries],
-                "intrinsics": intrinsics.model_dump() if intrinsics else None,
-                "width": size[0],
-                "height": size[1],
-                "source": {"path": str(source.path), "kind": source.kind},
-                "gt_dir": str(source.gt_dir) if source.gt_dir else None,
-                "fov_shape": fov_shape,
-                "dropped": dropped,
-            },
+        frames_file = FramesFile(
+            frames=entries,
+            intrinsics=intrinsics,
+            width=size[0],
+            height=size[1],
+            source=SourceInfo(path=str(source.path), kind=source.kind),
+            gt_dir=str(source.gt_dir) if source.gt_dir else None,
+            fov_shape=fov_shape,
+            dropped=dropped,
         )
+        write_json(ctx.out / FRAMES_FILE, frames_file.model_dump(mode="json"))
         write_contact_sheet(
             ctx.out / "contact_sheet.png", images, fov, ctx.out, cfg.contact_sheet_frames
         )
@@ -191,57 +117,6 @@ class Ingest(Stage):
             has_intrinsics=intrinsics is not None,
             has_ground_truth=source.gt_dir is not None,
         )
-
-
-def select_frames(
-    source: InputSource, cfg: IngestConfig, ctx: StageContext
-) -> tuple[list[Frame], dict[str, int], int]:
-    """Stride, time window, blank / duplicate / blur filtering; reasons are counted."""
-    dropped = {"outside_time_window": 0, "stride": 0, "blank": 0, "duplicate": 0, "blurred": 0}
-    candidates: list[Frame] = []
-    total = 0
-    last_grey: np.ndarray | None = None
-    with ctx.progress("decode", total=source.frame_count()) as advance:
-        for frame in source.frames():
-            total += 1
-            advance()
-            t = frame.time_s
-            if t is not None and (t < cfg.start_s or (cfg.end_s is not None and t > cfg.end_s)):
-                dropped["outside_time_window"] += 1
-                continue
-            if (total - 1) % cfg.stride:
-                dropped["stride"] += 1
-                continue
-            grey = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
-            if np.percentile(grey, 99) < cfg.black_level:
-                dropped["blank"] += 1
-                continue
-            if cfg.drop_duplicates and last_grey is not None:
-                if frame_difference(grey, last_grey) < cfg.duplicate_threshold:
-                    dropped["duplicate"] += 1
-                    continue
-            last_grey = grey
-            candidates.append(frame)
-    if total == 0:
-        raise InputError(f"{source.path} holds no decodable frames; check the file")
-    if not candidates:
-        raise InputError(
-            f"all {total} frames of {source.path} are blank (black) or outside the time window; "
-            "check the video and --set ingest.start_s/end_s"
-        )
-    if cfg.drop_blurred and len(candidates) >= 3:
-        scores = np.array([sharpness(f.rgb) for f in candidates])
-        keep = scores >= cfg.blur_rel_threshold * np.median(scores)
-        dropped["blurred"] = int((~keep).sum())
-        candidates = [f for f, k in zip(candidates, keep, strict=True) if k]
-    if cfg.max_frames is not None:
-        candidates = candidates[: cfg.max_frames]
-    if len(candidates) < cfg.min_frames:
-        raise InputError(
-            f"only {len(candidates)} usable frame(s) in {source.path} (of {total}); endopipe needs "
-            f"at least {cfg.min_frames}: give a longer video or lower --set ingest.stride"
-        )
-    return candidates, dropped, total
 
 
 def working_size(width: int, height: int, max_size: int) -> tuple[int, int]:

@@ -5,6 +5,9 @@ and its principal points use the OpenCV pixel convention (the centre of the top-
 (0, 0)). COLMAP stores world-to-camera poses and puts that pixel centre at (0.5, 0.5), so a COLMAP
 principal point is the OpenCV one + 0.5. nerfstudio's transforms.json uses OpenGL camera axes
 (x right, y up, z backward) and, like COLMAP, pixel centres at +0.5.
+
+There is one camera type, `Camera`: `camera_from_colmap` / `camera_to_colmap` convert it to and
+from COLMAP's (model name + params), lens distortion included both ways.
 """
 
 from __future__ import annotations
@@ -17,92 +20,114 @@ from pathlib import Path
 import numpy as np
 
 from endopipe.pipeline.errors import InputError
-from endopipe.stages.camera import Camera
+from endopipe.stages.camera import Camera, matrix_to_quat_wxyz
 
 #: c2w_opengl = c2w_opencv @ OPENGL_FROM_OPENCV (and back: the matrix is its own inverse).
 OPENGL_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
-#: Where fx, fy, cx, cy sit in COLMAP's parameter vector, per camera model (fy = fx when absent).
-PINHOLE_PARAMS = {
-    "SIMPLE_PINHOLE": (0, 0, 1, 2),
-    "PINHOLE": (0, 1, 2, 3),
-    "SIMPLE_RADIAL": (0, 0, 1, 2),
-    "RADIAL": (0, 0, 1, 2),
-    "OPENCV": (0, 1, 2, 3),
-    "FULL_OPENCV": (0, 1, 2, 3),
-    "OPENCV_FISHEYE": (0, 1, 2, 3),
-    "SIMPLE_RADIAL_FISHEYE": (0, 0, 1, 2),
-    "RADIAL_FISHEYE": (0, 0, 1, 2),
-    "THIN_PRISM_FISHEYE": (0, 1, 2, 3),
+#: COLMAP's parameter names per camera model (pycolmap's `params_info`), and the lens of
+#: endopipe's `Camera` each one is: "opencv" (radial-tangential) or "fisheye" (equidistant;
+#: COLMAP's fisheye models are OpenCV's fisheye with fewer coefficients).
+COLMAP_MODELS: dict[str, tuple[str, tuple[str, ...]]] = {
+    "SIMPLE_PINHOLE": ("pinhole", ("f", "cx", "cy")),
+    "PINHOLE": ("pinhole", ("fx", "fy", "cx", "cy")),
+    "SIMPLE_RADIAL": ("opencv", ("f", "cx", "cy", "k1")),
+    "RADIAL": ("opencv", ("f", "cx", "cy", "k1", "k2")),
+    "OPENCV": ("opencv", ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")),
+    "FULL_OPENCV": (
+        "opencv",
+        ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+    ),
+    "SIMPLE_RADIAL_FISHEYE": ("fisheye", ("f", "cx", "cy", "k1")),
+    "RADIAL_FISHEYE": ("fisheye", ("f", "cx", "cy", "k1", "k2")),
+    "OPENCV_FISHEYE": ("fisheye", ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")),
 }
+#: The coefficients of each lens of `Camera.dist`, in order.
+LENS_COEFFICIENTS = {"opencv": ("k1", "k2", "p1", "p2", "k3"), "fisheye": ("k1", "k2", "k3", "k4")}
 
 
-@dataclass
-class CameraModel:
-    """One COLMAP camera: model name, image size and parameters (COLMAP pixel convention)."""
-
-    model: str
-    width: int
-    height: int
-    params: list[float]
-
-    def intrinsics(self) -> Camera:
-        """The pinhole part, in endopipe's (OpenCV) pixel convention."""
-        if self.model not in PINHOLE_PARAMS:
-            raise InputError(
-                f"COLMAP camera model {self.model} is not supported; use PINHOLE, SIMPLE_RADIAL, "
-                "OPENCV or another perspective model"
-            )
-        i_fx, i_fy, i_cx, i_cy = PINHOLE_PARAMS[self.model]
-        p = self.params
-        return Camera(
-            width=self.width,
-            height=self.height,
-            fx=p[i_fx],
-            fy=p[i_fy],
-            cx=p[i_cx] - 0.5,
-            cy=p[i_cy] - 0.5,
+def camera_from_colmap(model: str, width: int, height: int, params: list[float]) -> Camera:
+    """A COLMAP camera (model name + params, COLMAP pixel convention) as endopipe's `Camera`,
+    its lens distortion included."""
+    if model not in COLMAP_MODELS:
+        raise InputError(
+            f"COLMAP camera model {model} is not supported; use one of {', '.join(COLMAP_MODELS)}"
         )
+    lens, names = COLMAP_MODELS[model]
+    if len(params) != len(names):
+        raise InputError(f"a COLMAP {model} camera has {len(names)} params, not {len(params)}")
+    v = dict(zip(names, map(float, params), strict=True))
+    if any(v.get(k, 0.0) for k in ("k4", "k5", "k6")) and lens == "opencv":
+        raise InputError("FULL_OPENCV's rational terms (k4, k5, k6) are not supported")
+    fx = v.get("fx", v.get("f"))
+    fy = v.get("fy", v.get("f"))
+    dist = None
+    if lens != "pinhole":
+        coefficients = LENS_COEFFICIENTS[lens]
+        if lens == "opencv" and "k3" not in v:
+            coefficients = coefficients[:4]
+        dist = [v.get(k, 0.0) for k in coefficients]
+    return Camera(
+        width=width,
+        height=height,
+        fx=fx,
+        fy=fy,
+        cx=v["cx"] - 0.5,
+        cy=v["cy"] - 0.5,
+        model=lens,
+        dist=dist,
+    )
 
-    def scaled(self, width: int, height: int) -> CameraModel:
-        """The same camera at another resolution (focal lengths and principal point scale)."""
-        if (width, height) == (self.width, self.height):
-            return self
-        sx, sy = width / self.width, height / self.height
-        i_fx, i_fy, i_cx, i_cy = PINHOLE_PARAMS.get(self.model, (0, 1, 2, 3))
-        p = list(self.params)
-        p[i_fx] *= sx
-        if i_fy != i_fx:
-            p[i_fy] *= sy
-        p[i_cx] *= sx  # COLMAP convention: pixel edges scale, so no half-pixel shift here
-        p[i_cy] *= sy
-        return CameraModel(self.model, width, height, p)
 
-    @classmethod
-    def pinhole(cls, k: Camera) -> CameraModel:
-        return cls("PINHOLE", k.width, k.height, [k.fx, k.fy, k.cx + 0.5, k.cy + 0.5])
+def default_colmap_model(camera: Camera) -> str:
+    """The smallest COLMAP model that holds the camera: PINHOLE, OPENCV, FULL_OPENCV (k3) or
+    OPENCV_FISHEYE."""
+    if not camera.distorted:
+        return "PINHOLE"
+    if camera.model == "fisheye":
+        return "OPENCV_FISHEYE"
+    dist = list(camera.dist or [])
+    return "FULL_OPENCV" if len(dist) > 4 and dist[4] != 0.0 else "OPENCV"
 
-    @classmethod
-    def from_intrinsics(cls, k: Camera) -> CameraModel:
-        """PINHOLE, or OPENCV / FULL_OPENCV when `dist` ([k1, k2, p1, p2, k3]) is not all zero."""
-        dist = [float(d) for d in (k.dist or [])]
-        if not any(dist):
-            return cls.pinhole(k)
-        dist = (dist + [0.0] * 5)[:5]
-        base = [k.fx, k.fy, k.cx + 0.5, k.cy + 0.5]
-        if dist[4] == 0.0:
-            return cls("OPENCV", k.width, k.height, base + dist[:4])
-        return cls("FULL_OPENCV", k.width, k.height, base + dist + [0.0, 0.0, 0.0])
+
+def camera_to_colmap(camera: Camera, model: str | None = None) -> tuple[str, list[float]]:
+    """endopipe's `Camera` as a COLMAP camera: model name and params (principal point + 0.5).
+    `model` picks the COLMAP model (default: `default_colmap_model`); a ValueError says when the
+    camera does not fit it (two focal lengths in a one-focal model, a coefficient it lacks)."""
+    model = model or default_colmap_model(camera)
+    if model not in COLMAP_MODELS:
+        raise ValueError(f"COLMAP camera model {model} is not supported")
+    lens, names = COLMAP_MODELS[model]
+    coefficients: dict[str, float] = {}
+    if camera.distorted:
+        coefficients = dict(zip(LENS_COEFFICIENTS[camera.model], camera.dist or [], strict=False))
+        if lens != camera.model:
+            raise ValueError(f"a {camera.model} lens is not a COLMAP {model} camera")
+    lost = [k for k, c in coefficients.items() if c != 0.0 and k not in names]
+    if lost:
+        raise ValueError(f"a COLMAP {model} camera has no {', '.join(lost)}")
+    if "f" in names and camera.fx != camera.fy:
+        raise ValueError(f"a COLMAP {model} camera has one focal length; fx != fy")
+    values = {"f": camera.fx, "fx": camera.fx, "fy": camera.fy}
+    values |= {"cx": camera.cx + 0.5, "cy": camera.cy + 0.5, **coefficients}
+    return model, [float(values.get(n, 0.0)) for n in names]
+
+
+def camera_from_pycolmap(camera) -> tuple[Camera, str]:
+    """A pycolmap.Camera as endopipe's `Camera` and its COLMAP model name."""
+    name = camera.model.name
+    return camera_from_colmap(name, camera.width, camera.height, list(camera.params)), name
 
 
 @dataclass
 class PoseSet:
     """A camera plus camera-to-world poses (OpenCV) by image name, and optional sparse points."""
 
-    camera: CameraModel | None
+    camera: Camera | None
     c2w: dict[str, np.ndarray]
     xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     rgb: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.uint8))
+    colmap_model: str | None = None  # the COLMAP model the camera came as (None: none given)
 
 
 def c2w_from_cam_from_world(matrix_3x4: np.ndarray) -> np.ndarray:
@@ -112,38 +137,21 @@ def c2w_from_cam_from_world(matrix_3x4: np.ndarray) -> np.ndarray:
     return np.linalg.inv(w2c)
 
 
-def rotmat_to_qvec(R: np.ndarray) -> np.ndarray:
-    """Rotation matrix -> unit quaternion (w, x, y, z), w >= 0 (COLMAP's images.txt order)."""
-    m = R
-    t = np.trace(m)
-    if t > 0:
-        s = np.sqrt(t + 1.0) * 2
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
-        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-    elif m[1, 1] > m[2, 2]:
-        s = np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
-        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-    else:
-        s = np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
-        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    q = np.array(q, dtype=np.float64)
-    q /= np.linalg.norm(q)
-    return -q if q[0] < 0 else q
-
-
-def write_text_model(folder: Path, camera: CameraModel, c2w: dict[str, np.ndarray]) -> None:
+def write_text_model(
+    folder: Path, camera: Camera, c2w: dict[str, np.ndarray], model: str | None = None
+) -> None:
     """A COLMAP text model (cameras.txt, images.txt, empty points3D.txt) for poses without tracks.
 
-    Image ids follow the order of `c2w`; every image has an empty 2D-point line.
+    `model` is the COLMAP camera model to write the camera as (default: the smallest that holds
+    its lens). Image ids follow the order of `c2w`; every image has an empty 2D-point line.
     """
     folder.mkdir(parents=True, exist_ok=True)
-    params = " ".join(f"{p:.10g}" for p in camera.params)
+    name, values = camera_to_colmap(camera, model)
+    params = " ".join(f"{p:.10g}" for p in values)
     (folder / "cameras.txt").write_text(
         "# Camera list with one line of data per camera:\n"
         "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
-        f"# Number of cameras: 1\n1 {camera.model} {camera.width} {camera.height} {params}\n"
+        f"# Number of cameras: 1\n1 {name} {camera.width} {camera.height} {params}\n"
     )
     lines = [
         "# Image list with two lines of data per image:",
@@ -153,7 +161,7 @@ def write_text_model(folder: Path, camera: CameraModel, c2w: dict[str, np.ndarra
     ]
     for image_id, (name, pose) in enumerate(c2w.items(), start=1):
         w2c = np.linalg.inv(pose)
-        q = rotmat_to_qvec(w2c[:3, :3])
+        q = matrix_to_quat_wxyz(w2c[:3, :3])
         t = w2c[:3, 3]
         values = " ".join(f"{v:.17g}" for v in (*q, *t))
         lines += [f"{image_id} {values} 1 {name}", ""]
@@ -187,15 +195,14 @@ def read_colmap_model(folder: Path) -> PoseSet:
             f"the COLMAP model in {folder} has {rec.num_cameras()} cameras; endopipe needs one "
             "shared camera (re-run COLMAP with a single camera)"
         )
-    cam = next(iter(rec.cameras.values()))
-    camera = CameraModel(cam.model.name, cam.width, cam.height, [float(p) for p in cam.params])
+    camera, model = camera_from_pycolmap(next(iter(rec.cameras.values())))
     poses = {
         img.name: c2w_from_cam_from_world(img.cam_from_world().matrix())
         for img in rec.images.values()
         if img.has_pose
     }
     xyz, rgb = reconstruction_points(rec)
-    return PoseSet(camera, poses, xyz, rgb)
+    return PoseSet(camera, poses, xyz, rgb, model)
 
 
 def reconstruction_points(rec) -> tuple[np.ndarray, np.ndarray]:
@@ -210,31 +217,27 @@ def reconstruction_points(rec) -> tuple[np.ndarray, np.ndarray]:
 
 def write_transforms_json(
     path: Path,
-    camera: CameraModel,
+    camera: Camera,
     frames: list[tuple[str, str | None, np.ndarray]],
     extra: dict | None = None,
 ) -> None:
-    """nerfstudio's transforms.json: `frames` is (file_path, mask_path, c2w OpenCV) per frame."""
-    k = camera.intrinsics()
+    """nerfstudio's transforms.json: `frames` is (file_path, mask_path, c2w OpenCV) per frame.
+    The lens is nerfstudio's OPENCV (k1, k2, p1, p2, and k3 when set) or OPENCV_FISHEYE."""
+    fisheye = camera.distorted and camera.model == "fisheye"
     data: dict = {
-        "camera_model": "OPENCV",
-        "fl_x": k.fx,
-        "fl_y": k.fy,
-        "cx": k.cx + 0.5,
-        "cy": k.cy + 0.5,
+        "camera_model": "OPENCV_FISHEYE" if fisheye else "OPENCV",
+        "fl_x": camera.fx,
+        "fl_y": camera.fy,
+        "cx": camera.cx + 0.5,
+        "cy": camera.cy + 0.5,
         "w": camera.width,
         "h": camera.height,
-        "k1": 0.0,
-        "k2": 0.0,
-        "p1": 0.0,
-        "p2": 0.0,
     }
-    if camera.model in ("SIMPLE_RADIAL", "RADIAL"):
-        data["k1"] = camera.params[3]
-        if camera.model == "RADIAL":
-            data["k2"] = camera.params[4]
-    elif camera.model in ("OPENCV", "FULL_OPENCV"):
-        data.update(zip(("k1", "k2", "p1", "p2"), camera.params[4:8], strict=True))
+    names = LENS_COEFFICIENTS["fisheye"] if fisheye else ("k1", "k2", "p1", "p2")
+    data |= dict.fromkeys(names, 0.0)
+    if camera.distorted:
+        coefficients = dict(zip(LENS_COEFFICIENTS[camera.model], camera.dist or [], strict=False))
+        data |= {k: float(c) for k, c in coefficients.items() if k in names or c != 0.0}
     data.update(extra or {})
     data["frames"] = []
     for file_path, mask_path, c2w in frames:
@@ -268,10 +271,19 @@ def read_transforms_json(path: Path) -> PoseSet:
     src = frames[0] if frames and "fl_x" in frames[0] else data
     if "fl_x" in src and "w" in src and "h" in src:
         fx = float(src["fl_x"])
-        fy = float(src.get("fl_y", fx))
-        cx = float(src.get("cx", src["w"] / 2))
-        cy = float(src.get("cy", src["h"] / 2))
-        camera = CameraModel("PINHOLE", int(src["w"]), int(src["h"]), [fx, fy, cx, cy])
+        lens = "fisheye" if src.get("camera_model") == "OPENCV_FISHEYE" else "opencv"
+        dist = [float(src.get(k, 0.0)) for k in LENS_COEFFICIENTS[lens]]
+        camera = Camera(
+            width=int(src["w"]),
+            height=int(src["h"]),
+            fx=fx,
+            fy=float(src.get("fl_y", fx)),
+            cx=float(src.get("cx", src["w"] / 2)) - 0.5,
+            cy=float(src.get("cy", src["h"] / 2)) - 0.5,
+            model=lens if any(dist) else "pinhole",
+            dist=dist if any(dist) else None,
+        )
+        return PoseSet(camera, poses, colmap_model=camera_to_colmap(camera)[0])
     return PoseSet(camera, poses)
 
 

@@ -21,6 +21,8 @@ from typing import Literal, Protocol, runtime_checkable
 import cv2
 import numpy as np
 
+from endopipe.pipeline.errors import InputError
+
 GtKind = Literal["exact", "pseudo", "relative"]
 
 
@@ -44,7 +46,8 @@ class GroundTruthSource(Protocol):
 
 
 def open_ground_truth(gt_dir: Path | str) -> GroundTruthSource:
-    """The ground truth behind a `gt_dir` (case.json / frames.json), whatever its format."""
+    """The ground truth behind a `gt_dir` (case.json / frames.json), whatever its format: the
+    one door every stage, command and report goes through (InputError when none is there)."""
     gt_dir = Path(gt_dir)
     if (gt_dir / "poses.json").is_file() or (gt_dir / "depth").is_dir():
         return GroundTruth(gt_dir)
@@ -52,7 +55,7 @@ def open_ground_truth(gt_dir: Path | str) -> GroundTruthSource:
 
     name = detect_dataset(gt_dir)
     if name is None:
-        raise ValueError(f"no ground truth that endopipe can read in {gt_dir}")
+        raise InputError(f"no ground truth that endopipe can read in {gt_dir}")
     return READERS[name].ground_truth(gt_dir)
 
 
@@ -67,10 +70,16 @@ def poses_by_frame(
     gt: GroundTruthSource | None, frames: Iterable[FrameRef]
 ) -> dict[int, np.ndarray] | None:
     """The frame -> truth mapping for poses, written once: GT c2w per endopipe frame index
-    (None when there are no GT poses)."""
+    (None when there are no GT poses). Unreadable poses are one InputError line."""
     if gt is None or not gt.has_poses():
         return None
-    poses = gt.poses()
+    try:
+        poses = [np.asarray(p, dtype=np.float64) for p in gt.poses()]
+        if any(p.shape != (4, 4) or not np.isfinite(p).all() for p in poses):
+            raise ValueError("every pose must be a finite 4x4 matrix")
+    except (ValueError, KeyError, TypeError, OSError) as e:
+        where = getattr(gt, "dir", None) or gt.dataset
+        raise InputError(f"cannot read the ground-truth poses in {where}: {e}") from None
     return {f.index: poses[f.source_index] for f in frames if f.source_index < len(poses)}
 
 

@@ -1,5 +1,5 @@
-"""The nerf stage (DESIGN §3 `04_nerf/`): field, sampling, rendering, losses, training."""
+"""The nerf stage (DESIGN §3 `04_nerf/`): field, sampling, rendering, losses, training.
 
-from endopipe.stages.nerf.stage import Nerf
-
-__all__ = ["Nerf"]
+Import the stage from `endopipe.stages.nerf.stage`: this package imports nothing, so inference
+(render, baked, the depth stage) does not load the training code.
+"""

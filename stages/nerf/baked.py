@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from endopipe.stages.camera import Camera
+from endopipe.stages.camera import Camera, image_directions
 
 
 @dataclass
@@ -25,9 +25,9 @@ class BakedSurface:
     prior: object | None = None
 
     def __post_init__(self) -> None:
-        from endopipe.stages.surface.evaluate import _raycasting_scene
+        from endopipe.stages.surface.raycast import raycasting_scene
 
-        self._scene = _raycasting_scene(self.vertices, self.faces) if len(self.faces) else None
+        self._scene = raycasting_scene(self.vertices, self.faces) if len(self.faces) else None
 
     @classmethod
     def bake(
@@ -44,24 +44,26 @@ class BakedSurface:
         """Iso-surface of the field's density in the prior's band, over the cameras' frustums,
         at `density_level` per lumen radius (None: the density at the field's rendered surface,
         from `surface_density_level`)."""
-        from endopipe.stages.mesh.stage import MeshConfig, density_mesh, nerf_density_fn
         from endopipe.stages.nerf.render import surface_density_level
+        from endopipe.stages.surface.marching import density_mesh, field_density_fn, iso_level
 
-        level = None
+        calibrated = None
         if density_level is None:
-            level = surface_density_level(model, prior, intrinsics, c2ws)
+            calibrated = surface_density_level(model, prior, intrinsics, c2ws)
 
-        cfg = MeshConfig(
-            method="marching_cubes",
-            mc_voxels_per_radius=voxels_per_radius,
-            density_level=density_level,
-            band=band,
-        )
         # The surface is baked up to `reach_radii` lumen radii from each camera: further out the
         # grid grows with the cube of the reach, and rays that miss take the prior's exit depth.
-        depth_trunc = float(prior.typical_radius) * reach_radii
+        radius = float(prior.typical_radius)
+        depth_trunc = radius * reach_radii
         mesh, _ = density_mesh(
-            nerf_density_fn(model), prior, c2ws, intrinsics, cfg, depth_trunc, level=level
+            field_density_fn(model),
+            prior,
+            c2ws,
+            intrinsics,
+            depth_trunc,
+            iso_level(calibrated, density_level, radius),
+            spacing=radius / voxels_per_radius,
+            band=band,
         )
         return cls(np.asarray(mesh.vertices), np.asarray(mesh.faces), prior)
 
@@ -71,8 +73,7 @@ class BakedSurface:
         the prior's tube, with opacity 0, or 0 without a prior."""
         import open3d as o3d
 
-        v, u = np.meshgrid(np.arange(k.height), np.arange(k.width), indexing="ij")
-        dc = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u, float)], -1)
+        dc = image_directions(k)  # camera z = 1, the lens's distortion undone
         norm = np.linalg.norm(dc, axis=-1)
         d = (dc / norm[..., None]).reshape(-1, 3) @ np.asarray(c2w)[:3, :3].T
         o = np.broadcast_to(np.asarray(c2w)[:3, 3], d.shape)

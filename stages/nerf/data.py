@@ -7,21 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-
-def pixel_rays(
-    c2w: torch.Tensor, K: tuple[float, float, float, float], u: torch.Tensor, v: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Rays through pixel coordinates (pixel-centre convention): origins (B, 3), directions
-    (B, 3) with camera-frame z = 1, so a ray parameter is a z-depth. c2w: (4, 4) or (B, 4, 4)."""
-    fx, fy, cx, cy = K
-    dc = torch.stack([(u - cx) / fx, (v - cy) / fy, torch.ones_like(u)], -1).to(c2w.dtype)
-    if c2w.dim() == 2:
-        d = dc @ c2w[:3, :3].T
-        o = c2w[:3, 3].expand_as(d)
-    else:
-        d = torch.einsum("bij,bj->bi", c2w[:, :3, :3], dc)
-        o = c2w[:, :3, 3]
-    return o.contiguous(), d.contiguous()
+from endopipe.stages.camera import Camera, direction_table, pixel_rays
 
 
 def holdout_split(indices: list[int], every: int) -> tuple[list[int], list[int]]:
@@ -47,27 +33,38 @@ class Batch:
 
 
 class FrameSet:
-    """Frames of one sequence on a device: images, masks, scene-frame poses, intrinsics."""
+    """Frames of one sequence on a device: images, masks, scene-frame poses, the camera (at the
+    images' resolution)."""
 
     def __init__(
         self,
         images: np.ndarray,
         masks: np.ndarray,
         c2w_scene: np.ndarray,
-        K: tuple[float, float, float, float],
+        camera: Camera,
         ids: list[int],
         device: torch.device,
     ) -> None:
         self.images = torch.as_tensor(images, dtype=torch.float32, device=device)  # (F,H,W,3)
         self.masks = torch.as_tensor(masks, dtype=torch.bool, device=device)  # (F,H,W)
         self.c2w = torch.as_tensor(c2w_scene, dtype=torch.float32, device=device)  # (F,4,4)
-        self.K = K
+        self.camera = camera
         self.ids = list(ids)
         self.device = device
         self.n, self.h, self.w = self.masks.shape
+        if (camera.width, camera.height) != (self.w, self.h):
+            raise ValueError(
+                f"camera is {camera.width}x{camera.height}, frames are {self.w}x{self.h}"
+            )
+        self._directions = direction_table(camera, device)  # distorted lenses only
 
     def rays(self, frame: torch.Tensor, u: torch.Tensor, v: torch.Tensor):
-        return pixel_rays(self.c2w[frame], self.K, u, v)
+        """Scene-frame rays (origins, directions with camera z = 1) through pixels of frames."""
+        return self.pixel_rays(self.c2w[frame], u, v)
+
+    def pixel_rays(self, c2w: torch.Tensor, u: torch.Tensor, v: torch.Tensor):
+        """Rays of this camera at scene-frame poses c2w ((4, 4) or (B, 4, 4))."""
+        return pixel_rays(self.camera, c2w, u, v, self._directions)
 
 
 class RaySampler:

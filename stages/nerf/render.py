@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from endopipe.stages.camera import Camera
+from endopipe.stages.camera import Camera, pixel_rays
+from endopipe.stages.nerf.bounds import scene_bounds
 from endopipe.stages.nerf.config import NerfConfig
-from endopipe.stages.nerf.data import pixel_rays
 from endopipe.stages.nerf.model import NerfModel
 from endopipe.stages.nerf.scene import SceneBox
 
@@ -52,18 +52,6 @@ def load_model(folder: Path | str, device: str | torch.device = "cpu") -> NerfMo
     return model.to(device).eval()
 
 
-def scene_bounds(model: NerfModel, prior, o: torch.Tensor, d: torch.Tensor):
-    """near / far (scene depth) of scene-frame rays: from the prior, else from the box."""
-    if prior is None:
-        return model.box.ray_bounds(o, d, model.cfg.sampling.near_fraction)
-    from endopipe.stages.nerf.train import PriorBounds
-
-    near, far, _ = PriorBounds(prior, model.box, model.cfg).bounds(
-        o, d, model.cfg.sampling.bounds_margin
-    )
-    return near, far
-
-
 @torch.no_grad()
 def render_image(
     model: NerfModel,
@@ -92,7 +80,7 @@ def render_image(
         torch.arange(w, device=dev, dtype=torch.float32),
         indexing="ij",
     )
-    o, d = pixel_rays(c2w_s, (k.fx, k.fy, k.cx, k.cy), uu.reshape(-1), vv.reshape(-1))
+    o, d = pixel_rays(k, c2w_s, uu.reshape(-1), vv.reshape(-1))
     chunk = chunk or model.cfg.sampling.chunk
     depth, opacity, rgb = [], [], []
     fr = None if frame is None else torch.tensor([frame], device=dev)
@@ -199,7 +187,7 @@ def surface_density_level(
         )
         u = torch.as_tensor(gen.uniform(0, k.width - 1, per_cam), dtype=torch.float32, device=dev)
         v = torch.as_tensor(gen.uniform(0, k.height - 1, per_cam), dtype=torch.float32, device=dev)
-        o, d = pixel_rays(c2w_s, (k.fx, k.fy, k.cx, k.cy), u, v)
+        o, d = pixel_rays(k, c2w_s, u, v)
         near, far = scene_bounds(model, prior, o, d)
         out = model.render_rays(o, d, near, far, colour=False, normals=False)
         w, t, op = out["weights"], out["t"], out["opacity"]

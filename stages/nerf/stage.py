@@ -15,16 +15,20 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from endopipe.pipeline.errors import EndopipeError
+from endopipe.pipeline.errors import EndopipeError, InputError
 from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
+from endopipe.stages.camera import Camera, pixel_rays
+from endopipe.stages.io.ground_truth import depth_of_frame
 from endopipe.stages.metrics.depth import depth_sequence_metrics
 from endopipe.stages.nerf import losses
+from endopipe.stages.nerf.bounds import PriorBounds
 from endopipe.stages.nerf.config import NerfConfig
-from endopipe.stages.nerf.data import FrameSet, holdout_split, pixel_rays
+from endopipe.stages.nerf.data import FrameSet, holdout_split
 from endopipe.stages.nerf.render import MODEL_FILE, render_image, save_model
 from endopipe.stages.nerf.scene import SceneBox
 from endopipe.stages.nerf.sparse_depth import sparse_depth_targets
-from endopipe.stages.nerf.train import CHECKPOINT, PriorBounds, Trainer, auto_threads, pick_device
+from endopipe.stages.nerf.train import CHECKPOINT, Trainer, auto_threads, pick_device
+from endopipe.stages.nerf.view import NerfView
 
 
 def load_prior(centerline) -> object:
@@ -40,9 +44,7 @@ def load_prior(centerline) -> object:
     return LumenPrior.load(path)
 
 
-def fit_box(
-    c2w: list[np.ndarray], K: tuple[float, float, float, float], hw: tuple[int, int], prior, cfg
-) -> SceneBox:
+def fit_box(c2w: list[np.ndarray], camera: Camera, hw: tuple[int, int], prior, cfg) -> SceneBox:
     """Scene box around what the cameras can see inside the prior's (inflated) lumen."""
     centres = np.array([c[:3, 3] for c in c2w])
     box0 = SceneBox.fit(centres, float(prior.typical_radius), centres)
@@ -55,7 +57,7 @@ def fit_box(
     pts = []
     for c in c2w:
         cs = torch.tensor(box0.c2w_to_scene(c), dtype=torch.float32)
-        o, d = pixel_rays(cs, K, u, v)
+        o, d = pixel_rays(camera, cs, u, v)
         _, far, _ = pb.bounds(o, d, cfg.sampling.bounds_margin, wall=True)
         pts.append(box0.scene_to_world_np((o + far[:, None] * d).numpy()))
     f = cfg.field
@@ -73,7 +75,7 @@ def load_sparse_depth(
 ):
     """SfM-point depth targets of the training frames (None when the poses have no tracks).
     Pixels are rescaled when the poses' camera has another resolution than the frames."""
-    obs = poses.observations({Path(f.file).name: f.index for f in ingest.frames})
+    obs = poses.observations(ingest.index_by_name())
     k = poses.intrinsics
     if obs is not None and (k.width, k.height) != (ingest.width, ingest.height):
         scale = np.array([ingest.width / k.width, ingest.height / k.height])
@@ -128,6 +130,10 @@ class Nerf(Stage):
     Config = NerfConfig
     resumable = True
 
+    @classmethod
+    def view(cls, folder: Path) -> NerfView:
+        return NerfView(folder)
+
     def run(self, ctx: StageContext) -> NerfSummary:
         cfg: NerfConfig = ctx.config  # type: ignore[assignment]
         threads = torch.get_num_threads()
@@ -142,10 +148,9 @@ class Nerf(Stage):
         ingest, poses = ctx.input("ingest"), ctx.input("poses")
         prior = load_prior(ctx.input("centerline"))
         ids, k, images, masks, c2w = build_frames(ingest, poses, device)
-        K = (k.fx, k.fy, k.cx, k.cy)
-        box = fit_box(c2w, K, images.shape[1:3], prior, cfg)
+        box = fit_box(c2w, k, images.shape[1:3], prior, cfg)
         frames = FrameSet(
-            images, masks, np.stack([box.c2w_to_scene(c) for c in c2w]), K, ids, device
+            images, masks, np.stack([box.c2w_to_scene(c) for c in c2w]), k, ids, device
         )
         train_ids, held_ids = holdout_split(ids, cfg.train.holdout_every)
         pos = {i: p for p, i in enumerate(ids)}
@@ -193,10 +198,13 @@ class Nerf(Stage):
 
 def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) -> dict:
     """Render the held-out frames: PSNR on usable pixels, depth metrics against ground truth."""
-    from endopipe.stages.io.ground_truth import GroundTruth
-
     held = held_ids[: cfg.train.eval_frames] if cfg.train.eval_frames else held_ids
-    gt = GroundTruth(ingest.gt_dir) if ingest.gt_dir is not None else None
+    try:
+        gt = ingest.ground_truth()
+    except InputError as e:
+        ctx.log(f"ground truth ignored: {e}")  # it only evaluates the NeRF: not fatal here
+        gt = None
+    fov = ingest.fov()
     pos = {i: p for p, i in enumerate(ids)}
     preds, gts, fovs, mses, times, previews = [], [], [], [], [], []
     for i in held:
@@ -207,18 +215,15 @@ def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) 
         m = ingest.mask(i) > 127
         mses.append(float(((out["rgb"] - img) ** 2).mean(-1)[m].mean()) if m.any() else np.nan)
         previews.append((img, out))
-        if gt is not None:
-            g = gt.depth(ingest.frames[i].source_index)
-            if g is not None:
-                if g.shape != out["depth"].shape:
-                    import cv2
+        g = depth_of_frame(gt, ingest.frame(i))
+        if g is not None:
+            if g.shape != out["depth"].shape:
+                import cv2
 
-                    g = cv2.resize(g, out["depth"].shape[::-1], interpolation=cv2.INTER_NEAREST)
-                preds.append(out["depth"])
-                gts.append(g)
-                fovs.append(
-                    ingest.fov() > 127 if (ingest.folder / "fov_mask.png").is_file() else None
-                )
+                g = cv2.resize(g, out["depth"].shape[::-1], interpolation=cv2.INTER_NEAREST)
+            preds.append(out["depth"])
+            gts.append(g)
+            fovs.append(fov > 127 if fov is not None else None)
     depth_ms = []
     for i in held[:3]:  # what the depth stage pays per frame: depth and opacity only
         t0 = time.perf_counter()

@@ -13,9 +13,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from endopipe.stages.camera import project
 from endopipe.stages.nerf import losses
+from endopipe.stages.nerf.bounds import PriorBounds
 from endopipe.stages.nerf.config import NerfConfig
-from endopipe.stages.nerf.data import FrameSet, RaySampler, neighbours, pixel_rays
+from endopipe.stages.nerf.data import FrameSet, RaySampler, neighbours
 from endopipe.stages.nerf.model import NerfModel
 from endopipe.stages.nerf.scene import SceneBox
 from endopipe.stages.nerf.sparse_depth import SparseDepth
@@ -60,36 +62,6 @@ def pick_device(name: str) -> torch.device:
     if name == "cuda" or (name == "auto" and torch.cuda.is_available()):
         return torch.device("cuda")
     return torch.device("cpu")
-
-
-class PriorBounds:
-    """The lumen prior seen from the scene frame: ray bounds in scene depth, core membership."""
-
-    def __init__(self, prior, box: SceneBox, cfg: NerfConfig) -> None:
-        self.prior, self.box, self.cfg = prior, box, cfg
-        self.max_far = cfg.sampling.far_radii * float(prior.typical_radius)
-
-    def _world_rays(self, o: torch.Tensor, d: torch.Tensor):
-        rot = torch.as_tensor(self.box.rotation, dtype=d.dtype, device=d.device)
-        return self.box.scene_to_world(o), (d @ rot.T) * self.box.scale
-
-    def bounds(self, o: torch.Tensor, d: torch.Tensor, margin: float, wall: bool = False):
-        """near, far (scene z-depth) and whether far is the wall (not the cap). With
-        sampling.bounds = "box" (an ablation) the sampling bounds come from the scene box;
-        `wall=True` always asks the prior."""
-        if self.cfg.sampling.bounds == "box" and not wall:
-            near, far = self.box.ray_bounds(o, d, self.cfg.sampling.near_fraction)
-            return near, far, torch.zeros_like(near, dtype=torch.bool)
-        ow, dw = self._world_rays(o, d)
-        near, far = self.prior.ray_bounds(
-            ow, dw, margin, max_far=self.max_far, near_fraction=self.cfg.sampling.near_fraction
-        )
-        near, far = near.to(o.dtype), far.to(o.dtype)
-        cap = self.max_far / dw.norm(dim=-1)
-        return near, torch.maximum(far, near * 1.5), far < 0.999 * cap
-
-    def in_core(self, x: torch.Tensor, fraction: float) -> torch.Tensor:
-        return self.prior.in_core(self.box.scene_to_world(x), fraction)
 
 
 def initial_gain(frames: FrameSet, train: list[int], pb: PriorBounds, gamma: float, gen) -> float:
@@ -316,18 +288,14 @@ class Trainer:
         x = o[:n] + depth[:n, None] * d[:n]
         nb = self.neighbour[b.frame[:n]]
         c2w = self.frames.c2w[nb]
-        xc = torch.einsum("bji,bj->bi", c2w[:, :3, :3], x - c2w[:, :3, 3])
-        fx, fy, cx, cy = self.frames.K
-        zc = xc[:, 2]
-        zs = zc.clamp_min(1e-4)
-        u = fx * xc[:, 0] / zs + cx
-        v = fy * xc[:, 1] / zs + cy
+        uv, zc = project(self.frames.camera, x, c2w, near=1e-4)
+        u, v = uv[:, 0], uv[:, 1]
         h, w = self.frames.h, self.frames.w
         inside = (zc > 1e-3) & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
         ui = u.detach().round().long().clamp(0, w - 1)
         vi = v.detach().round().long().clamp(0, h - 1)
         valid = inside & self.frames.masks[nb, vi, ui]
-        o2, d2 = pixel_rays(c2w, self.frames.K, u.detach(), v.detach())
+        o2, d2 = self.frames.pixel_rays(c2w, u.detach(), v.detach())
         return losses.geometric_consistency(zc, self._depth(o2, d2), valid)
 
     # --- the loop -----------------------------------------------------------------------------

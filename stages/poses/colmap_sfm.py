@@ -12,10 +12,9 @@ from __future__ import annotations
 import shutil
 import time
 from collections.abc import Callable, Iterator
-from contextlib import AbstractContextManager, contextmanager
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import cv2  # must precede pycolmap (see endopipe.stages/__init__.py)
 import numpy as np
@@ -23,14 +22,15 @@ import pycolmap
 
 from endopipe.pipeline.errors import StageFailed
 from endopipe.stages.camera import Camera
-from endopipe.stages.io.colmap_model import CameraModel, reconstruction_points
-
-if TYPE_CHECKING:
-    from endopipe.stages.ingest.stage import IngestView
-    from endopipe.stages.poses.stage import PosesConfig
-
-#: ctx.progress: (description, total) -> context manager yielding advance(n=1, info=None)
-ProgressFactory = Callable[[str, int | None], AbstractContextManager[Callable[..., None]]]
+from endopipe.stages.ingest.view import IngestView
+from endopipe.stages.io.colmap_model import (
+    c2w_from_cam_from_world,
+    camera_from_pycolmap,
+    camera_to_colmap,
+    reconstruction_points,
+)
+from endopipe.stages.poses.config import PosesConfig
+from endopipe.stages.poses.estimate import ProgressFactory
 
 
 @dataclass
@@ -38,7 +38,8 @@ class SfmResult:
     """The reconstruction kept (largest model, after merging) and what happened on the way."""
 
     reconstruction: pycolmap.Reconstruction | None  # None when no model was found
-    camera: CameraModel | None
+    camera: Camera | None  # the model's camera, its lens included
+    colmap_model: str | None  # ... and the COLMAP model it was estimated as
     #: endopipe frame index -> camera-to-world 4x4 (OpenCV), registered frames only
     c2w: dict[int, np.ndarray]
     model_sizes: list[int]
@@ -58,8 +59,8 @@ def run_sfm(
     """Features -> matches -> incremental mapping -> merge the other models into the largest."""
     scratch.mkdir(parents=True, exist_ok=True)
     database = scratch / "database.db"
-    names = [Path(f.file).name for f in ingest.frames]
-    index_of = {name: f.index for name, f in zip(names, ingest.frames, strict=True)}
+    index_of = ingest.index_by_name()
+    names = list(index_of)
     timings: dict[str, float] = {}
     with colmap_logging(cfg.colmap_log), progress("features + matching", 2) as advance:
         t = time.perf_counter()
@@ -73,13 +74,11 @@ def run_sfm(
         advance(info=f"{num_verified_pairs(database)} verified pairs")
     t = time.perf_counter()
     with colmap_logging(cfg.colmap_log):
-        models = map_incremental(
-            database, ingest.folder / "frames", cfg, intrinsics, len(names), progress
-        )
+        models = map_incremental(database, ingest.frames_dir, cfg, intrinsics, len(names), progress)
     timings["mapping_s"] = time.perf_counter() - t
     if not models:  # no initial pair: the quality gate reports 0 registered frames
         log("COLMAP found no initial image pair (no model)")
-        return SfmResult(None, None, {}, [], "no model to merge", 0, timings)
+        return SfmResult(None, None, None, {}, [], "no model to merge", 0, timings)
     models.sort(key=lambda r: r.num_reg_images(), reverse=True)
     sizes = [r.num_reg_images() for r in models]
     largest = models[0]
@@ -91,7 +90,7 @@ def run_sfm(
                 extended = continue_mapping(
                     database,
                     largest,
-                    ingest.folder / "frames",
+                    ingest.frames_dir,
                     scratch,
                     cfg,
                     intrinsics,
@@ -110,38 +109,35 @@ def run_sfm(
         else:
             merge = "not tried (poses.merge_models=false); kept the largest model"
     log(f"models {sizes}; {merge}")
-    camera = next(iter(largest.cameras.values()))
-    cam = CameraModel(
-        camera.model.name, camera.width, camera.height, list(map(float, camera.params))
-    )
-    c2w = {}
-    for image in largest.images.values():
-        if image.has_pose and image.name in index_of:
-            w2c = np.eye(4)
-            w2c[:3, :4] = image.cam_from_world().matrix()
-            c2w[index_of[image.name]] = np.linalg.inv(w2c)
-    return SfmResult(largest, cam, c2w, sizes, merge, merged, timings)
+    camera, model = camera_from_pycolmap(next(iter(largest.cameras.values())))
+    c2w = {
+        index_of[image.name]: c2w_from_cam_from_world(image.cam_from_world().matrix())
+        for image in largest.images.values()
+        if image.has_pose and image.name in index_of
+    }
+    return SfmResult(largest, camera, model, c2w, sizes, merge, merged, timings)
 
 
 def triangulate_known(
     ingest: IngestView,
     scratch: Path,
     cfg: PosesConfig,
-    camera: CameraModel,
+    camera: tuple[Camera, str],
     c2w: dict[int, np.ndarray],
     progress: ProgressFactory,
     log: Callable[[str], None] = lambda _: None,
 ) -> tuple[pycolmap.Reconstruction, np.ndarray, np.ndarray]:
     """Sparse points from fixed poses and a fixed camera (poses.source=gt|file).
 
-    The same features and matches as SfM, then COLMAP's point triangulator with the poses held:
+    `camera` is the known camera and the COLMAP model to give it as. The same features and
+    matches as SfM, then COLMAP's point triangulator with the poses held:
     the centerline stage measures the lumen radius from these points, as it does from SfM's.
     Returns the model (poses, camera, tracks), xyz (N,3) and rgb (N,3 uint8), in c2w's frame.
     """
     scratch.mkdir(parents=True, exist_ok=True)
     database = scratch / "database.db"
-    names = [Path(f.file).name for f in ingest.frames]
-    frame_of = {name: f.index for name, f in zip(names, ingest.frames, strict=True)}
+    frame_of = ingest.index_by_name()
+    names = list(frame_of)
     with colmap_logging(cfg.colmap_log), progress("triangulation from known poses", 3) as advance:
         t = time.perf_counter()
         image_dir, mask_dir = prepare_images(ingest, names, scratch, cfg)
@@ -163,7 +159,7 @@ def triangulate_known(
                 rec.add_image_with_trivial_frame(image)
             else:
                 rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(np.linalg.inv(pose)[:3]))
-        options = mapper_options(cfg, None, ingest.folder / "frames")
+        options = mapper_options(cfg, None, ingest.frames_dir)
         options.ba_refine_focal_length = False  # the camera is known: only the points move
         options.ba_refine_principal_point = False
         options.ba_refine_extra_params = False
@@ -172,7 +168,7 @@ def triangulate_known(
             rec = pycolmap.triangulate_points(
                 rec,
                 database,
-                ingest.folder / "frames",  # colours from the RGB frames
+                ingest.frames_dir,  # colours from the RGB frames
                 scratch / "triangulated",
                 clear_points=True,
                 options=options,
@@ -227,18 +223,22 @@ def extract(
     names: list[str],
     cfg: PosesConfig,
     intrinsics: Camera | None,
-    camera: CameraModel | None = None,
+    camera: tuple[Camera, str] | None = None,
 ) -> None:
-    """SIFT on every image, one shared camera (PINHOLE, or OPENCV with `dist`, when known).
+    """SIFT on every image, one shared camera (the smallest COLMAP model of the known lens).
 
-    `camera` gives that camera as it is (a pose file's own model may carry other distortion).
+    `camera` gives that camera with its own COLMAP model (a pose file's may be another one).
     """
     reader = pycolmap.ImageReaderOptions()
     reader.mask_path = str(mask_dir)
-    known = camera or (CameraModel.from_intrinsics(intrinsics) if intrinsics is not None else None)
+    known = None
+    if camera is not None:
+        known = camera_to_colmap(*camera)
+    elif intrinsics is not None:
+        known = camera_to_colmap(intrinsics)
     if known is not None:
-        reader.camera_model = known.model
-        reader.camera_params = ",".join(f"{v:.17g}" for v in known.params)
+        reader.camera_model = known[0]
+        reader.camera_params = ",".join(f"{v:.17g}" for v in known[1])
     else:
         reader.camera_model = cfg.camera_model
     options = pycolmap.FeatureExtractionOptions()

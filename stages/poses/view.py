@@ -6,9 +6,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, model_validator
 
 from endopipe.stages.camera import Camera
+from endopipe.stages.io.colmap_model import camera_from_colmap, camera_to_colmap
 
 
 class FramePose(BaseModel):
@@ -18,7 +19,12 @@ class FramePose(BaseModel):
 
 
 class CamerasFile(BaseModel):
-    """One shared pinhole camera and a camera-to-world pose per frame (OpenCV convention)."""
+    """One shared camera and a camera-to-world pose per frame (OpenCV convention).
+
+    The camera is `intrinsics()`, one `Camera` with its lens distortion, stored with the keys
+    of DESIGN §3: `model` + `params` are the COLMAP camera (distortion included) and
+    width..cy its pinhole part in OpenCV's pixel convention, for tools that read only those.
+    """
 
     width: int
     height: int
@@ -26,41 +32,56 @@ class CamerasFile(BaseModel):
     fy: float
     cx: float
     cy: float
-    model: str = "PINHOLE"
+    model: str = Field("PINHOLE", description="COLMAP camera model")
     params: list[float] = Field(
-        default_factory=list, description="COLMAP camera params as estimated."
+        default_factory=list,
+        description="COLMAP camera params (principal point + 0.5); empty = PINHOLE of fx..cy.",
     )
     metric: bool = False
     units: str = "colmap"
     source: str = "colmap"
     frames: list[FramePose]
 
+    @model_validator(mode="after")
+    def _one_camera(self) -> CamerasFile:
+        """fx..cy and model + params are one camera, never two that disagree."""
+        k = self.intrinsics()
+        got, want = (self.fx, self.fy, self.cx, self.cy), (k.fx, k.fy, k.cx, k.cy)
+        if not np.allclose(got, want, rtol=1e-9, atol=1e-9):
+            raise ValueError(f"fx, fy, cx, cy {got} are not those of the {self.model} params")
+        return self
+
     def intrinsics(self) -> Camera:
-        return Camera(
-            width=self.width, height=self.height, fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy
-        )
+        """The camera, with its lens distortion."""
+        if not self.params:
+            return Camera(
+                width=self.width, height=self.height, fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy
+            )
+        return camera_from_colmap(self.model, self.width, self.height, self.params)
 
     @classmethod
     def build(
         cls,
-        intrinsics: Camera,
+        camera: Camera,
         poses: dict[int, np.ndarray],
         n_frames: int,
         *,
-        model: str = "PINHOLE",
-        params: list[float] | None = None,
+        colmap_model: str | None = None,
         metric: bool,
         source: str,
     ) -> CamerasFile:
+        """`colmap_model`: the COLMAP model to give the camera as (default: the smallest that
+        holds its lens)."""
+        model, params = camera_to_colmap(camera, colmap_model)
         return cls(
-            width=intrinsics.width,
-            height=intrinsics.height,
-            fx=intrinsics.fx,
-            fy=intrinsics.fy,
-            cx=intrinsics.cx,
-            cy=intrinsics.cy,
+            width=camera.width,
+            height=camera.height,
+            fx=camera.fx,
+            fy=camera.fy,
+            cx=camera.cx,
+            cy=camera.cy,
             model=model,
-            params=params or [],
+            params=params,
             metric=metric,
             units="mm" if metric else "colmap",
             source=source,
@@ -89,12 +110,13 @@ class SparseObservations:
 
 
 class PosesView:
-    """Typed access to 02_poses: intrinsics, registered frames' c2w, sparse points."""
+    """Typed access to 02_poses: the camera (with its lens), registered frames' c2w, sparse
+    points."""
 
     def __init__(self, folder: Path) -> None:
-        self.folder = folder
-        self.file = CamerasFile.model_validate_json((folder / "cameras.json").read_text())
-        self.intrinsics = self.file.intrinsics()
+        self.folder = Path(folder)
+        self.file = CamerasFile.model_validate_json((self.folder / "cameras.json").read_text())
+        self.intrinsics: Camera = self.file.intrinsics()  # the one camera, distortion included
         self.metric = self.file.metric
         self.c2w: dict[int, np.ndarray] = {
             f.index: np.array(f.c2w, dtype=np.float64) for f in self.file.frames if f.registered
@@ -108,9 +130,19 @@ class PosesView:
         """Camera centres of the registered frames, in frame order (Nx3)."""
         return np.array([self.c2w[i][:3, 3] for i in self.registered]).reshape(-1, 3)
 
+    @property
+    def points_path(self) -> Path:
+        """points.ply: the sparse 3D points (absent when the source gave none)."""
+        return self.folder / "points.ply"
+
+    @property
+    def sparse_dir(self) -> Path:
+        """sparse/: the COLMAP model with its tracks (absent when the poses came without)."""
+        return self.folder / "sparse"
+
     def points(self) -> np.ndarray:
         """Sparse 3D points (Nx3) from points.ply; empty when the source gave none."""
-        path = self.folder / "points.ply"
+        path = self.points_path
         if not path.is_file():
             return np.zeros((0, 3))
         import trimesh
@@ -122,7 +154,7 @@ class PosesView:
         """The sparse model's 2D-3D observations (sparse/, same world frame as cameras.json);
         `index_of` maps an image file name to its frame index. None without a model or
         tracks (e.g. poses from a transforms.json)."""
-        folder = self.folder / "sparse"
+        folder = self.sparse_dir
         if not (folder / "points3D.txt").is_file() and not (folder / "points3D.bin").is_file():
             return None
         import pycolmap  # cv2 is already imported through the `endopipe.stages` package

@@ -1,12 +1,13 @@
 """Mesh evaluation (DESIGN §6): Chamfer distance, accuracy, completeness and F-score.
 
-Plain functions over arrays (vertices (V, 3), faces (F, 3), OpenCV camera-to-world poses); no
-pipeline imports, no I/O.
+Plain functions over arrays (vertices (V, 3), faces (F, 3), OpenCV camera-to-world poses) and
+the one `Camera` (its projection and rays, with the lens, from stages/camera); no I/O.
 
 Distances are point-to-surface: points sampled uniformly (by area) on one mesh are measured to
 the nearest point of the other mesh's triangles (open3d's RaycastingScene), not to the other
-mesh's samples, so two identical meshes score ~0 whatever the sample count. `nearest_distance`
-(k-d tree, point-to-point) is there for point clouds.
+mesh's samples, so two identical meshes score ~0 whatever the sample count. Samples:
+`trimesh.sample.sample_surface`, seeded. `nearest_distance` (k-d tree, point-to-point) is there
+for point clouds.
 
 What is compared (the crop, `evaluate_mesh`):
 - completeness (gt -> est) is measured on the part of the ground-truth surface the cameras
@@ -27,56 +28,41 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-_CHUNK = 1 << 20  # points per raycasting query
+from endopipe.stages.camera import Camera, pixel_directions, project
+from endopipe.stages.surface.raycast import Raycaster, point_to_surface
+
+__all__ = [
+    "by_camera_distance",
+    "chamfer",
+    "evaluate_mesh",
+    "faces_near_cameras",
+    "frustum_box",
+    "fscore",
+    "in_any_frustum",
+    "in_frustum",
+    "nearest_distance",
+    "point_to_surface",
+    "sample_surface",
+    "surface_metrics",
+    "transform_points",
+    "visible_from_cameras",
+]
 
 
 def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
-    """`n` points uniformly distributed (by area) on a triangle mesh; (n, 3) float64."""
+    """`n` points uniformly distributed (by area) on a triangle mesh; (n, 3) float64 (trimesh's
+    sampler, seeded); none when the mesh has no area."""
+    import trimesh
+
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64).reshape(-1, 3)
     if len(f) == 0 or n <= 0:
         return np.zeros((0, 3))
-    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-    total = area.sum()
-    if not total > 0:
+    mesh = trimesh.Trimesh(vertices=v, faces=f, process=False, validate=False)
+    if not mesh.area > 0:
         return np.zeros((0, 3))
-    rng = np.random.default_rng(seed)
-    tri = rng.choice(len(f), size=n, p=area / total)
-    r1, r2 = rng.random(n), rng.random(n)
-    s = np.sqrt(r1)
-    w0, w1, w2 = 1.0 - s, s * (1.0 - r2), s * r2
-    return w0[:, None] * a[tri] + w1[:, None] * b[tri] + w2[:, None] * c[tri]
-
-
-def _raycasting_scene(vertices: np.ndarray, faces: np.ndarray):
-    import open3d as o3d
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        o3d.core.Tensor(np.ascontiguousarray(vertices, np.float32)),
-        o3d.core.Tensor(np.ascontiguousarray(faces, np.uint32)),
-    )
-    return scene
-
-
-def point_to_surface(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Unsigned distance of each point (N, 3) to the nearest point of the triangle mesh."""
-    import open3d as o3d
-
-    pts = np.asarray(points, np.float64).reshape(-1, 3)
-    if len(pts) == 0:
-        return np.zeros(0)
-    if len(np.asarray(faces).reshape(-1, 3)) == 0:
-        return np.full(len(pts), np.inf)
-    # float32 inside open3d: work relative to the points' centre to keep precision.
-    centre = pts.mean(0)
-    scene = _raycasting_scene(np.asarray(vertices, np.float64) - centre, faces)
-    out = np.empty(len(pts))
-    for a in range(0, len(pts), _CHUNK):
-        q = o3d.core.Tensor(np.ascontiguousarray(pts[a : a + _CHUNK] - centre, np.float32))
-        out[a : a + _CHUNK] = scene.compute_distance(q).numpy()
-    return out
+    points, _ = trimesh.sample.sample_surface(mesh, n, seed=seed)
+    return np.asarray(points, np.float64)
 
 
 def nearest_distance(points: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -88,40 +74,27 @@ def nearest_distance(points: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return cKDTree(ref).query(pts, k=1, workers=-1)[0]
 
 
-def camera_depths(
-    points: np.ndarray, c2w: np.ndarray, K: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 2) pixel coordinates and (N,) z-depths of world points in one OpenCV camera."""
-    w2c = np.linalg.inv(np.asarray(c2w, np.float64))
-    pc = points @ w2c[:3, :3].T + w2c[:3, 3]
-    z = pc[:, 2]
-    safe = np.where(np.abs(z) < 1e-12, 1e-12, z)
-    uv = np.stack([K[0, 0] * pc[:, 0] / safe + K[0, 2], K[1, 1] * pc[:, 1] / safe + K[1, 2]], -1)
-    return uv, z
-
-
 def in_frustum(
     points: np.ndarray,
     c2w: np.ndarray,
-    K: np.ndarray,
-    width: int,
-    height: int,
+    camera: Camera,
     max_depth: float,
     mask: np.ndarray | None = None,
     margin_px: float = 0.0,
 ) -> np.ndarray:
-    """Whether each point projects inside the image (pixel centres 0..W-1, 0..H-1, grown by
-    `margin_px`) and inside `mask` (HxW, nonzero = seen) with z-depth in (0, max_depth]."""
+    """Whether each point projects (through the camera's lens) inside the image (pixel centres
+    0..W-1, 0..H-1, grown by `margin_px`) and inside `mask` (HxW, nonzero = seen) with z-depth
+    in (0, max_depth]."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
     w2c = np.linalg.inv(np.asarray(c2w, np.float64))
-    z = points @ w2c[2, :3] + w2c[2, 3]
+    z = pts @ w2c[2, :3] + w2c[2, 3]
     ok = (z > 0) & (z <= max_depth)
     idx = np.nonzero(ok)[0]
     if len(idx) == 0:
         return ok
-    p = points[idx]
-    zi = z[idx]
-    u = K[0, 0] * (p @ w2c[0, :3] + w2c[0, 3]) / zi + K[0, 2]
-    v = K[1, 1] * (p @ w2c[1, :3] + w2c[1, 3]) / zi + K[1, 2]
+    uv, _ = project(camera, pts[idx], c2w)
+    u, v = uv[:, 0], uv[:, 1]
+    width, height = camera.width, camera.height
     m = margin_px + 0.5
     inside = (u >= -m) & (u <= width - 1 + m) & (v >= -m) & (v <= height - 1 + m)
     if mask is not None:
@@ -135,9 +108,7 @@ def in_frustum(
 def in_any_frustum(
     points: np.ndarray,
     c2ws: list[np.ndarray],
-    K: np.ndarray,
-    width: int,
-    height: int,
+    camera: Camera,
     max_depth: float,
     mask: np.ndarray | None = None,
     margin_px: float = 0.0,
@@ -149,16 +120,14 @@ def in_any_frustum(
         todo = np.nonzero(~seen)[0]
         if len(todo) == 0:
             break
-        seen[todo] = in_frustum(pts[todo], c2w, K, width, height, max_depth, mask, margin_px)
+        seen[todo] = in_frustum(pts[todo], c2w, camera, max_depth, mask, margin_px)
     return seen
 
 
 def visible_from_cameras(
     points: np.ndarray,
     c2ws: list[np.ndarray],
-    K: np.ndarray,
-    width: int,
-    height: int,
+    camera: Camera,
     max_depth: float,
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -168,43 +137,35 @@ def visible_from_cameras(
     """Whether each surface point (on the mesh vertices/faces) is seen by at least one camera:
     in its frustum up to max_depth (and in `mask`), and the first hit of the ray from the camera
     centre through it (a hit closer than (1 - tol) x the point's distance occludes it)."""
-    import open3d as o3d
-
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     seen = np.zeros(len(pts), bool)
     if len(pts) == 0:
         return seen
-    centre = pts.mean(0)
-    scene = _raycasting_scene(np.asarray(vertices, np.float64) - centre, faces)
+    caster = Raycaster(vertices, faces, origin=pts.mean(0))
     for c2w in c2ws:
         todo = np.nonzero(~seen)[0]
         if len(todo) == 0:
             break
-        cand = todo[in_frustum(pts[todo], c2w, K, width, height, max_depth, mask)]
+        cand = todo[in_frustum(pts[todo], c2w, camera, max_depth, mask)]
         if len(cand) == 0:
             continue
         origin = np.asarray(c2w, np.float64)[:3, 3]
         vec = pts[cand] - origin
         dist = np.linalg.norm(vec, axis=1)
-        dirs = vec / np.maximum(dist, 1e-12)[:, None]
-        for a in range(0, len(cand), _CHUNK):
-            sl = slice(a, a + _CHUNK)
-            rays = np.concatenate(
-                [np.broadcast_to(origin - centre, dirs[sl].shape), dirs[sl]], axis=1
-            )
-            hit = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays, np.float32)))
-            t = hit["t_hit"].numpy().astype(np.float64)
-            seen[cand[sl]] |= t >= dist[sl] * (1.0 - tol)
+        t, _ = caster.cast(origin, vec / np.maximum(dist, 1e-12)[:, None])
+        seen[cand] |= t >= dist * (1.0 - tol)
     return seen
 
 
 def frustum_box(
-    c2ws: list[np.ndarray], K: np.ndarray, width: int, height: int, max_depth: float
+    c2ws: list[np.ndarray], camera: Camera, max_depth: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """World bounding box (lo, hi) of the cameras' frustums: apexes and far-plane corners."""
-    cu = np.array([-0.5, width - 0.5, -0.5, width - 0.5])
-    cv = np.array([-0.5, -0.5, height - 0.5, height - 0.5])
-    rays = np.stack([(cu - K[0, 2]) / K[0, 0], (cv - K[1, 2]) / K[1, 1], np.ones(4)], -1)
+    """World bounding box (lo, hi) of the cameras' frustums: apexes and far-plane corners (the
+    rays through the image's outer corners, the lens undone)."""
+    w, h = camera.width, camera.height
+    cu = np.array([-0.5, w - 0.5, -0.5, w - 0.5])
+    cv = np.array([-0.5, -0.5, h - 0.5, h - 0.5])
+    rays = pixel_directions(camera, cu, cv)
     pts = []
     for c2w in c2ws:
         c2w = np.asarray(c2w, np.float64)
@@ -218,9 +179,7 @@ def faces_near_cameras(
     vertices: np.ndarray,
     faces: np.ndarray,
     c2ws: list[np.ndarray],
-    K: np.ndarray,
-    width: int,
-    height: int,
+    camera: Camera,
     max_depth: float,
     slack: float = 0.05,
 ) -> np.ndarray:
@@ -228,14 +187,12 @@ def faces_near_cameras(
     size and of max_depth): a cheap superset of the visible surface (and of its occluders)."""
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64).reshape(-1, 3)
-    lo, hi = frustum_box(c2ws, K, width, height, max_depth * (1.0 + slack))
+    lo, hi = frustum_box(c2ws, camera, max_depth * (1.0 + slack))
     pad = slack * max_depth
     cand = np.nonzero(((v >= lo - pad) & (v <= hi + pad)).all(1))[0]
     near_v = np.zeros(len(v), bool)
-    margin = slack * max(width, height)
-    near_v[cand] = in_any_frustum(
-        v[cand], c2ws, K, width, height, max_depth * (1.0 + slack), None, margin
-    )
+    margin = slack * max(camera.width, camera.height)
+    near_v[cand] = in_any_frustum(v[cand], c2ws, camera, max_depth * (1.0 + slack), None, margin)
     return f[near_v[f].any(1)]
 
 
@@ -322,9 +279,7 @@ def evaluate_mesh(
     gt_vertices: np.ndarray,
     gt_faces: np.ndarray,
     c2ws: list[np.ndarray],
-    K: np.ndarray,
-    width: int,
-    height: int,
+    camera: Camera,
     max_depth: float,
     threshold: float,
     *,
@@ -336,8 +291,8 @@ def evaluate_mesh(
 ) -> dict[str, Any]:
     """Metrics of an estimated mesh against the part of the GT mesh the cameras could see.
 
-    All inputs share the GT's world frame and units (align first). `c2ws`, `K`, `width`,
-    `height`, `mask`: the registered cameras; `max_depth`: the depth up to which surface counts
+    All inputs share the GT's world frame and units (align first). `c2ws`, `camera`, `mask`:
+    the registered cameras; `max_depth`: the depth up to which surface counts
     as seen (the reconstruction's depth truncation). See the module docstring for the crop.
     Adds to `surface_metrics`: gt_area_seen (area of the GT surface in the crop), the share of
     GT samples kept, the number of points on each side, and with `distance_bands` (edges of
@@ -345,18 +300,18 @@ def evaluate_mesh(
     """
     gt_v = np.asarray(gt_vertices, np.float64)
     gt_f = np.asarray(gt_faces, np.int64).reshape(-1, 3)
-    near = faces_near_cameras(gt_v, gt_f, c2ws, K, width, height, max_depth)
+    near = faces_near_cameras(gt_v, gt_f, c2ws, camera, max_depth)
     gt_pts = sample_surface(gt_v, near, n_samples, seed + 1)
     if occlusion:  # occluders lie in the frustums too: the near faces suffice
-        keep = visible_from_cameras(gt_pts, c2ws, K, width, height, max_depth, gt_v, near, mask)
+        keep = visible_from_cameras(gt_pts, c2ws, camera, max_depth, gt_v, near, mask)
     else:
-        keep = in_any_frustum(gt_pts, c2ws, K, width, height, max_depth, mask)
+        keep = in_any_frustum(gt_pts, c2ws, camera, max_depth, mask)
     gt_pts = gt_pts[keep]
     a, b, c = gt_v[near[:, 0]], gt_v[near[:, 1]], gt_v[near[:, 2]]
     near_area = float(0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
 
     est_pts = sample_surface(est_vertices, est_faces, n_samples, seed)
-    est_pts = est_pts[in_any_frustum(est_pts, c2ws, K, width, height, max_depth, mask)]
+    est_pts = est_pts[in_any_frustum(est_pts, c2ws, camera, max_depth, mask)]
 
     d_acc = point_to_surface(est_pts, gt_v, gt_f)
     d_comp = point_to_surface(gt_pts, est_vertices, est_faces)

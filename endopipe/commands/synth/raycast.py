@@ -22,7 +22,7 @@ import numpy as np
 import open3d as o3d
 
 from endopipe.commands.synth.scene import Scene
-from endopipe.stages.camera import Camera
+from endopipe.stages.camera import Camera, image_directions
 
 MIN_STEP = 0.01  # mm: below this the tracer steps anyway and lets the bracket catch the crossing
 MAX_ITER = 2000
@@ -314,17 +314,17 @@ class FrameGeometry:
 
 
 @lru_cache(maxsize=4)
-def _pixel_dirs(width: int, height: int, fx: float, fy: float, cx: float, cy: float) -> tuple:
-    """Unit camera-frame directions of all pixel centres (row-major), and z per unit length."""
-    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-    d = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], -1).reshape(-1, 3)
+def _unit_directions(camera_json: str) -> tuple[np.ndarray, np.ndarray]:
+    """Unit camera-frame directions of all pixel centres (row-major), and z per unit length,
+    for a camera given as JSON (a Camera is not hashable; frames share one camera)."""
+    d = image_directions(Camera.model_validate_json(camera_json)).reshape(-1, 3)
     norm = np.linalg.norm(d, axis=1)
     return d / norm[:, None], 1.0 / norm
 
 
 def camera_rays(intr: Camera, c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Camera centre, unit world directions of all pixel centres (row-major), z per unit length."""
-    d, z_per_t = _pixel_dirs(intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy)
+    d, z_per_t = _unit_directions(intr.model_dump_json())
     # einsum, not @: a BLAS call spawns threads that only contend on a busy 2-core machine.
     return c2w[:3, 3].copy(), np.einsum("nj,ij->ni", d, c2w[:3, :3]), z_per_t
 

@@ -1,0 +1,118 @@
+"""`endopipe batch FOLDER`: find the cases, run them on an executor, write batch.csv/html."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from endopipe.commands.batch.driver import run_cases
+from endopipe.commands.batch.page import write_html
+from endopipe.commands.batch.rows import CaseRow, CaseTask
+from endopipe.commands.batch.table import write_csv
+from endopipe.pipeline.config import load_config
+from endopipe.pipeline.errors import EndopipeError
+from endopipe.pipeline.executors import EXECUTORS, ClusterConfig, load_cluster_config
+from endopipe.pipeline.runner import Pipeline, ensure_writable
+
+
+def run_batch(
+    pipe: Pipeline,
+    case_fn: Callable[[CaseTask], CaseRow],
+    folder: Path,
+    workdir: Path,
+    *,
+    config_files: Sequence[str] = (),
+    sets: Sequence[str] = (),
+    format_: str = "auto",
+    executor: str = "local",
+    jobs: int | None = None,
+    until: str | None = None,
+    cluster_config: Path | None = None,
+    ray_address: str | None = None,
+    dry_run: bool = False,
+    console: Console,
+    out: Console,
+) -> list[CaseRow]:
+    """Every case under `folder` through `pipe` with `case_fn` (top-level, picklable: it runs
+    in worker processes or cluster jobs). Raises when a case failed, after writing the table."""
+    from endopipe.stages.io.datasets import find_cases
+
+    if until is not None:
+        pipe.index(until)
+    if executor not in EXECUTORS:
+        raise EndopipeError(f"unknown executor '{executor}'; executors: {', '.join(EXECUTORS)}")
+    configs = load_config(pipe.stages, config_files, sets)
+    cluster = load_cluster_config(cluster_config) if executor != "local" else ClusterConfig()
+    ensure_writable(workdir)
+    wd = workdir.resolve()
+    cases = find_cases(folder, format_, skip=(wd,))
+    if not cases:
+        raise EndopipeError(
+            f"no cases found in {folder}: expected videos, image folders, endopipe case folders "
+            "or Hamlyn / C3VD / SimCol3D sequences (or pass --format)"
+        )
+    table = Table(title=f"{len(cases)} case(s) in {folder}")
+    for col in ("case", "reader", "input"):
+        table.add_column(col, overflow="fold")
+    for c in cases:
+        table.add_row(escape(c.name), c.format, escape(str(c.path)))
+    out.print(table)
+    if dry_run:
+        return []
+    resolved = {name: cfg.model_dump(mode="json") for name, cfg in configs.items()}
+    tasks = [
+        CaseTask(
+            name=c.name,
+            input=str(c.path.resolve()),
+            reader=c.format,
+            workdir=str(wd),
+            configs=resolved,
+            until=until,
+        )
+        for c in cases
+    ]
+    t0 = time.perf_counter()
+    rows = run_cases(
+        executor,
+        case_fn,
+        tasks,
+        jobs=jobs,
+        workdir=wd,
+        cluster=cluster,
+        ray_address=ray_address,
+        on_row=lambda row: print_case_row(console, row),
+        note=lambda m: console.print(f"[dim]{escape(m)}[/dim]"),
+    )
+    elapsed = time.perf_counter() - t0
+    csv_path = write_csv(rows, wd / "batch.csv")
+    html_path = write_html(rows, wd / "batch.html", title=f"endopipe batch: {folder}")
+    failed = [r for r in rows if r.status != "ok"]
+    out.print(
+        f"{len(rows)} case(s), {len(rows) - len(failed)} ok, {len(failed)} failed, "
+        f"{elapsed:.1f} s with the {executor} executor -> {csv_path}, {html_path}"
+    )
+    if failed:
+        raise EndopipeError(
+            f"{len(failed)} of {len(rows)} case(s) failed; reasons in {csv_path}", exit_code=3
+        )
+    return rows
+
+
+def print_case_row(console: Console, row: CaseRow) -> None:
+    """One line per finished case, as it finishes."""
+    if row.status == "ok":
+        ran = "+".join(row.stages_ran) or "nothing (all cached)"
+        gt = f"  [yellow]{row.gt_kind} ground truth[/yellow]" if row.gt_kind == "pseudo" else ""
+        console.print(
+            f"[green]✓[/green] {escape(row.case)}  [dim]{row.reader}[/dim]  ran {ran}, "
+            f"{row.wall_s:.1f} s{gt}"
+        )
+    else:
+        console.print(
+            f"[red]✗[/red] {escape(row.case)}  [dim]{row.reader}[/dim]  {escape(row.reason)}"
+        )

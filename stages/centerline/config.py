@@ -1,0 +1,82 @@
+"""The centerline stage's settings: the curve's smoothing and extension, recentring on the
+points' circles, the radius profile and its fallbacks.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from endopipe.pipeline.stage import StageConfig
+
+
+class CenterlineConfig(StageConfig):
+    prior: Literal["tube", "cavity"] = Field(
+        "tube", description="tube: a curve with a radius (colon); cavity: an ellipsoid (stomach)."
+    )
+    n_samples: int = Field(256, ge=16, le=4096, description="Samples of the output curve.")
+    smoothing: float = Field(
+        1.0,
+        ge=0,
+        description="Spline smoothing s = smoothing x n x wobble^2 (wobble: the path's scatter "
+        "about a local-linear fit one radius wide). 0 interpolates the cameras.",
+    )
+    smooth_radii: float = Field(
+        1.0, gt=0, description="Width of the local-linear fit that measures the wobble, in radii."
+    )
+    extend_ahead: float = Field(
+        1.0, ge=0, description="Extend the curve past the cameras it looks towards, in radii."
+    )
+    extend_behind: float = Field(
+        0.5, ge=0, description="Extend the curve past the cameras it looks away from, in radii."
+    )
+    min_cameras: int = Field(
+        5, ge=2, description="Fewer registered cameras than this: a line (PCA axis), no spline."
+    )
+    recentre: bool = Field(
+        True, description="Move the curve onto the axis of circles fitted to the points."
+    )
+    recentre_iters: int = Field(2, ge=0, le=10, description="Rounds of recentring.")
+    max_shift: float = Field(
+        0.5, ge=0, description="Largest recentring offset accepted for a slice, in radii."
+    )
+    min_sectors: int = Field(
+        6,
+        ge=3,
+        le=8,
+        description="A slice's circle counts when its points fill this many of "
+        "8 angular sectors around the curve.",
+    )
+    recentre_bin_width: float = Field(
+        0.5, gt=0, description="Slice width of the circle fits, along the curve, in radii."
+    )
+    recentre_smoothing: float = Field(
+        1.0, gt=0, description="Gaussian smoothing of the recentring offsets, in radii."
+    )
+    bin_width: float = Field(
+        0.2, gt=0, description="Slice width of the radius estimate, along the curve, in radii."
+    )
+    radius_smoothing: float = Field(
+        0.25, gt=0, description="Gaussian smoothing of the radius along the curve, in radii."
+    )
+    min_points_per_bin: int = Field(12, ge=3, description="Points a slice needs to count.")
+    min_points: int = Field(
+        30, ge=3, description="Fewer usable points: no radius profile (global median fallback)."
+    )
+    outlier_mad: float = Field(3.0, gt=0, description="Outlier rejection at this many MADs.")
+    max_points: int = Field(
+        200_000, ge=1000, description="Subsample the sparse points to at most this many."
+    )
+    default_radius_mm: float = Field(
+        15.0, gt=0, description="Radius when no points are usable and cameras are metric (mm)."
+    )
+    default_radius_fraction: float = Field(
+        0.1,
+        gt=0,
+        description="Radius when no points are usable and cameras are not metric, as a fraction "
+        "of the camera path length.",
+    )
+    far_radii: float = Field(
+        6.0, gt=0, description="The prior's default cap for ray far bounds, in radii."
+    )

@@ -1,0 +1,31 @@
+"""The depth stage's settings: which renderer, the baked surface's resolution, the preview."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from endopipe.pipeline.stage import StageConfig
+
+
+class DepthConfig(StageConfig):
+    renderer: Literal["baked", "field"] = Field(
+        "baked",
+        description="baked: ray-cast an iso-surface baked once from the field's density (fast); "
+        "field: volume-render the trained field at every sample (exact expected depth, slow).",
+    )
+    bake_voxels_per_radius: int = Field(
+        24, ge=4, le=256, description="Baked surface: grid nodes per lumen radius."
+    )
+    bake_density_level: float | None = Field(
+        None,
+        gt=0,
+        description="Baked surface: density iso-level, per lumen radius (None: calibrated so "
+        "that the baked surface passes through the field's rendered surface).",
+    )
+    preview: bool = Field(True, description="Write preview.mp4 (RGB | depth | error).")
+    preview_fps: int = Field(10, ge=1, description="Frame rate of preview.mp4.")
+    colour: bool = Field(
+        True, description="Render colour too (needed for PSNR/SSIM on held-out frames)."
+    )

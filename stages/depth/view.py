@@ -1,0 +1,75 @@
+"""05_depth (DESIGN §3): depth/<index>.npy, opacity/<index>.npy, 16-bit PNGs, metrics.json,
+preview.mp4. `DepthView` is the only reader of the folder; `DepthMetrics` is metrics.json."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+DEPTH_DIR = "depth"
+OPACITY_DIR = "opacity"
+METRICS_FILE = "metrics.json"
+PREVIEW_FILE = "preview.mp4"
+
+
+def frame_file(index: int, suffix: str = ".npy") -> str:
+    """The file name of endopipe frame `index` (000012.npy)."""
+    return f"{index:06d}{suffix}"
+
+
+class DepthMetrics(BaseModel):
+    """metrics.json: flat protocol blocks (stages.metrics.depth), per frame, and held-out image
+    quality. Blocks are present only when they were computed (no ground truth: none of the
+    depth ones); further keys from the metrics library are kept as they are."""
+
+    model_config = ConfigDict(extra="allow", ser_json_inf_nan="constants")
+
+    median_scaled: dict[str, float] | None = None
+    sequence_scaled: dict[str, float] | None = None
+    unscaled: dict[str, float] | None = None
+    affine_invariant: dict[str, float] | None = None
+    frames: int | None = None
+    per_frame: list[dict] | None = None
+    gt_kind: str | None = None  # "exact" | "pseudo" | "relative"
+    heldout_frames: list[int] | None = None
+    heldout_psnr: float | None = None
+    heldout_ssim: float | None = None
+    per_frame_image: dict[str, dict[str, float]] | None = None
+
+
+class DepthView:
+    """Typed access to 05_depth: depth maps by endopipe frame index."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = Path(folder)
+        self.indices = sorted(
+            int(p.stem) for p in (self.folder / DEPTH_DIR).glob("*.npy") if p.stem.isdigit()
+        )
+
+    def depth_path(self, index: int) -> Path:
+        return self.folder / DEPTH_DIR / frame_file(index)
+
+    def has_depth(self, index: int) -> bool:
+        return self.depth_path(index).is_file()
+
+    def depth(self, index: int) -> np.ndarray:
+        """float32 z-depth in the units of cameras.json, 0 = invalid."""
+        return np.load(self.depth_path(index))
+
+    def opacity(self, index: int) -> np.ndarray | None:
+        """Accumulated opacity of the rendered rays (0..1), or None when not written."""
+        path = self.folder / OPACITY_DIR / frame_file(index)
+        return np.load(path) if path.is_file() else None
+
+    @property
+    def metrics(self) -> DepthMetrics | None:
+        """metrics.json (both protocols, per frame, held-out PSNR / SSIM); None when absent."""
+        path = self.folder / METRICS_FILE
+        return DepthMetrics.model_validate_json(path.read_text()) if path.is_file() else None
+
+    @property
+    def preview_path(self) -> Path:
+        """preview.mp4: RGB | depth | error (absent when the stage's preview is off)."""
+        return self.folder / PREVIEW_FILE

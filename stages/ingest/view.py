@@ -1,0 +1,147 @@
+"""`01_ingest/frames.json` (DESIGN §3 file contract) and the only reader of 01_ingest.
+
+Every other stage, command and report asks `IngestView` for a frame's image, mask, file or
+ground truth, so the folder layout is written here once, beside `FramesFile`, which the ingest
+stage writes.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+from pathlib import Path
+
+import cv2
+import numpy as np
+from pydantic import BaseModel, Field
+
+from endopipe.stages.camera import Camera
+from endopipe.stages.io.ground_truth import GroundTruthSource, open_ground_truth
+from endopipe.stages.io.sources import list_images
+
+FRAMES_FILE = "frames.json"
+FOV_FILE = "fov_mask.png"
+CONTACT_SHEET_FILE = "contact_sheet.png"
+
+
+class FrameEntry(BaseModel):
+    """One kept frame: endopipe's number, its position in the input, and its files."""
+
+    index: int = Field(description="endopipe's frame number")
+    source_index: int = Field(description="position in the input = the ground truth's number")
+    time_s: float | None = Field(None, description="time in the video (None for images)")
+    file: str = Field(description="the frame, relative to 01_ingest")
+    mask: str = Field(description="its mask (255 = use), relative to 01_ingest")
+
+
+class SourceInfo(BaseModel):
+    path: str
+    kind: str
+
+
+class FramesFile(BaseModel):
+    """frames.json: written by the ingest stage, read only through `IngestView`."""
+
+    frames: list[FrameEntry]
+    intrinsics: Camera | None = None
+    width: int
+    height: int
+    source: SourceInfo | None = None
+    gt_dir: str | None = None
+    fov_shape: str | None = None
+    dropped: dict[str, int] = Field(default_factory=dict)
+
+
+class IngestView:
+    """Typed access to 01_ingest for downstream stages: frames by endopipe index."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = Path(folder)
+        self.file = FramesFile.model_validate_json((self.folder / FRAMES_FILE).read_text())
+        self.frames: list[FrameEntry] = self.file.frames
+        self.intrinsics: Camera | None = self.file.intrinsics
+        self.width: int = self.file.width
+        self.height: int = self.file.height
+        self.gt_dir = Path(self.file.gt_dir) if self.file.gt_dir else None
+
+    # --- frames -------------------------------------------------------------------------------
+    @cached_property
+    def _by_index(self) -> dict[int, FrameEntry]:
+        return {f.index: f for f in self.frames}
+
+    def frame(self, index: int) -> FrameEntry:
+        """The entry of endopipe frame `index` (KeyError when ingest did not keep it)."""
+        return self._by_index[index]
+
+    def has_frame(self, index: int) -> bool:
+        return index in self._by_index
+
+    @property
+    def indices(self) -> list[int]:
+        return [f.index for f in self.frames]
+
+    @property
+    def frames_dir(self) -> Path:
+        """The folder of the frames (COLMAP reads them from it by file name)."""
+        return self.image_path(self.frames[0].index).parent
+
+    def index_by_name(self) -> dict[str, int]:
+        """Frame file name ("000012.png", COLMAP's image name) -> frame index, in frame order."""
+        return {Path(f.file).name: f.index for f in self.frames}
+
+    def image_path(self, i: int) -> Path:
+        return self.folder / self.frame(i).file
+
+    def mask_path(self, i: int) -> Path:
+        return self.folder / self.frame(i).mask
+
+    def image(self, i: int) -> np.ndarray:
+        """RGB uint8 of frame i (endopipe index)."""
+        return cv2.cvtColor(cv2.imread(str(self.image_path(i))), cv2.COLOR_BGR2RGB)
+
+    def mask(self, i: int) -> np.ndarray:
+        """uint8 mask, 255 = usable (inside the field of view, not specular)."""
+        return cv2.imread(str(self.mask_path(i)), cv2.IMREAD_GRAYSCALE)
+
+    @property
+    def fov_path(self) -> Path:
+        return self.folder / FOV_FILE
+
+    @property
+    def contact_sheet_path(self) -> Path:
+        """contact_sheet.png: the kept frames with their masks (for the report; may be absent)."""
+        return self.folder / CONTACT_SHEET_FILE
+
+    def fov(self) -> np.ndarray | None:
+        """uint8 field-of-view mask of the sequence (255 = inside the scope's image), or None
+        when the folder has none (hand-made test folders)."""
+        path = self.fov_path
+        return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) if path.is_file() else None
+
+    # --- names: which frame a file of poses or ground truth means -----------------------------
+    def source_file_names(self) -> list[str]:
+        """The input's image file names in source order (empty for a video or a missing
+        input): an image folder's own names, for files named after them."""
+        src = Path(self.file.source.path) if self.file.source else None
+        return [p.name for p in list_images(src)] if src is not None and src.is_dir() else []
+
+    def index_by_stem(self) -> dict[str, int]:
+        """endopipe's file stem ("000012") -> frame index."""
+        return {Path(f.file).stem: f.index for f in self.frames}
+
+    def index_by_source_stem(self) -> dict[str, int]:
+        """The input file's stem (image folders) -> frame index."""
+        names = self.source_file_names()
+        return {
+            Path(names[f.source_index]).stem: f.index
+            for f in self.frames
+            if f.source_index < len(names)
+        }
+
+    def index_by_source_index(self) -> dict[int, int]:
+        """Position in the input -> frame index."""
+        return {f.source_index: f.index for f in self.frames}
+
+    # --- ground truth ---------------------------------------------------------------------------
+    def ground_truth(self) -> GroundTruthSource | None:
+        """The input's ground truth (any format `open_ground_truth` reads), or None."""
+        return open_ground_truth(self.gt_dir) if self.gt_dir is not None else None

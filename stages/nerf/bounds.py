@@ -1,0 +1,51 @@
+"""Ray bounds: where along each ray the samplers look (nerfacc's estimators). From the lumen
+prior (the tube's wall, capped at a few radii) or, as an ablation and without a prior, from the
+scene box. Training and inference share them, so this sits beside sampling, not in train.py."""
+
+from __future__ import annotations
+
+import torch
+
+from endopipe.stages.nerf.config import NerfConfig
+from endopipe.stages.nerf.model import NerfModel
+from endopipe.stages.nerf.scene import SceneBox
+
+
+class PriorBounds:
+    """The lumen prior seen from the scene frame: ray bounds in scene depth, core membership."""
+
+    def __init__(self, prior, box: SceneBox, cfg: NerfConfig) -> None:
+        self.prior, self.box, self.cfg = prior, box, cfg
+        self.max_far = cfg.sampling.far_radii * float(prior.typical_radius)
+
+    def _world_rays(self, o: torch.Tensor, d: torch.Tensor):
+        rot = torch.as_tensor(self.box.rotation, dtype=d.dtype, device=d.device)
+        return self.box.scene_to_world(o), (d @ rot.T) * self.box.scale
+
+    def bounds(self, o: torch.Tensor, d: torch.Tensor, margin: float, wall: bool = False):
+        """near, far (scene z-depth) and whether far is the wall (not the cap). With
+        sampling.bounds = "box" (an ablation) the sampling bounds come from the scene box;
+        `wall=True` always asks the prior."""
+        if self.cfg.sampling.bounds == "box" and not wall:
+            near, far = self.box.ray_bounds(o, d, self.cfg.sampling.near_fraction)
+            return near, far, torch.zeros_like(near, dtype=torch.bool)
+        ow, dw = self._world_rays(o, d)
+        near, far = self.prior.ray_bounds(
+            ow, dw, margin, max_far=self.max_far, near_fraction=self.cfg.sampling.near_fraction
+        )
+        near, far = near.to(o.dtype), far.to(o.dtype)
+        cap = self.max_far / dw.norm(dim=-1)
+        return near, torch.maximum(far, near * 1.5), far < 0.999 * cap
+
+    def in_core(self, x: torch.Tensor, fraction: float) -> torch.Tensor:
+        return self.prior.in_core(self.box.scene_to_world(x), fraction)
+
+
+def scene_bounds(model: NerfModel, prior, o: torch.Tensor, d: torch.Tensor):
+    """near / far (scene depth) of scene-frame rays: from the prior, else from the box."""
+    if prior is None:
+        return model.box.ray_bounds(o, d, model.cfg.sampling.near_fraction)
+    near, far, _ = PriorBounds(prior, model.box, model.cfg).bounds(
+        o, d, model.cfg.sampling.bounds_margin
+    )
+    return near, far

@@ -1,0 +1,83 @@
+"""04_nerf (DESIGN §3): the only reader of the NeRF stage's folder, beside the stage that writes
+it: the trained model (through render.load_model, so inference never imports training), the
+training log and plots, the held-out evaluation (metrics.json) and the stage's summary."""
+
+from __future__ import annotations
+
+import csv
+import json
+from functools import cached_property
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from endopipe.pipeline.cache import Manifest
+from endopipe.stages.nerf.render import MODEL_FILE, load_model
+
+if TYPE_CHECKING:
+    from endopipe.stages.nerf.model import NerfModel
+
+TRAIN_LOG_FILE = "train_log.csv"
+LOSS_PLOT_FILE = "loss.png"
+HELDOUT_PLOT_FILE = "heldout.png"
+METRICS_FILE = "metrics.json"
+
+
+class NerfView:
+    """Typed access to 04_nerf."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = Path(folder)
+
+    # --- the model --------------------------------------------------------------------------
+    @property
+    def model_path(self) -> Path:
+        """model.pt: config, scene box, weights and meta (frame ids, train / held-out, units)."""
+        return self.folder / MODEL_FILE
+
+    def model(self, device: str = "cpu") -> NerfModel:
+        """The trained NerfModel, in eval mode; its `meta` says which frames were held out."""
+        return load_model(self.model_path, device)
+
+    # --- training -----------------------------------------------------------------------------
+    @property
+    def train_log_path(self) -> Path:
+        return self.folder / TRAIN_LOG_FILE
+
+    def train_log(self) -> list[dict[str, float | None]]:
+        """train_log.csv as rows (step, loss, photo, ..., psnr); an empty cell is None."""
+        if not self.train_log_path.is_file():
+            return []
+        with open(self.train_log_path, newline="") as fh:
+            return [
+                {k: float(v) if v not in ("", None) else None for k, v in row.items()}
+                for row in csv.DictReader(fh)
+            ]
+
+    @property
+    def loss_plot_path(self) -> Path:
+        """loss.png: the training losses and training PSNR."""
+        return self.folder / LOSS_PLOT_FILE
+
+    @property
+    def heldout_plot_path(self) -> Path:
+        """heldout.png: held-out frames, their renderings and depth (absent without any)."""
+        return self.folder / HELDOUT_PLOT_FILE
+
+    # --- evaluation ---------------------------------------------------------------------------
+    @cached_property
+    def metrics(self) -> dict[str, Any] | None:
+        """metrics.json: held-out frames, PSNR, render times and, with ground-truth depth,
+        `depth` ({"median_scaled", "sequence_scaled", "unscaled"}); None when absent."""
+        path = self.folder / METRICS_FILE
+        return json.loads(path.read_text()) if path.is_file() else None
+
+    @property
+    def heldout(self) -> list[int]:
+        """The frames held out of training (and evaluated)."""
+        return list((self.metrics or {}).get("heldout", []))
+
+    @property
+    def summary(self) -> dict[str, Any]:
+        """The stage's summary in its manifest (steps, train_s, heldout_psnr, depth, ...)."""
+        manifest = Manifest.load(self.folder)
+        return dict(manifest.summary) if manifest is not None else {}

@@ -1,0 +1,114 @@
+"""The poses stage's settings: where poses come from, and COLMAP's options tuned for endoscopy."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from endopipe.pipeline.stage import StageConfig
+
+CameraModelName = Literal["SIMPLE_RADIAL", "RADIAL", "SIMPLE_PINHOLE", "PINHOLE", "OPENCV"]
+
+
+class PosesConfig(StageConfig):
+    source: Literal["colmap", "gt", "file"] = Field(
+        "colmap",
+        description="Where poses come from: COLMAP SfM on the frames, the input's ground truth "
+        "(a case's gt/poses.json or a data set's pose files), or poses.file.",
+    )
+    file: str | None = Field(
+        None,
+        description="For source=file: a COLMAP model folder (text or binary) or a transforms.json "
+        "(OpenGL convention). Images are matched to frames by name, else by the number in it.",
+    )
+    min_registered: float = Field(
+        0.7, ge=0, le=1, description="Fail when fewer than this share of the frames get a pose."
+    )
+    align_to_gt: bool = Field(
+        True,
+        description="With ground-truth poses in the input, move the reconstruction onto them "
+        "(sim3 on camera centres): GT world frame, millimetres, metric=true.",
+    )
+    seed: int = Field(0, ge=0, description="Seed of every random choice (RANSAC, mapper).")
+    num_threads: int = Field(
+        1,
+        ge=-1,
+        description="Matching and mapper threads. 1 makes two runs agree (COLMAP is "
+        "deterministic only single-threaded); -1 = all cores.",
+    )
+    clahe: bool = Field(
+        True, description="Extract features on CLAHE-equalised grey images (more SIFT on mucosa)."
+    )
+    clahe_clip_limit: float = Field(2.0, gt=0, description="CLAHE contrast clip limit.")
+    clahe_tiles: int = Field(8, ge=1, description="CLAHE tiles per image side.")
+    use_masks: bool = Field(
+        True, description="Ignore features outside the ingest masks (scope border, speculars)."
+    )
+    mask_grow_px: int = Field(
+        3,
+        ge=0,
+        description="Grow the specular holes of the mask by this much for feature extraction "
+        "(synthetic colon, 60 frames: ATE 1.46% of the path with 0, 0.25% with 5 px in total).",
+    )
+    sift_peak_threshold: float = Field(
+        0.002,
+        gt=0,
+        description="SIFT peak threshold (COLMAP default 0.0067): lower finds features on "
+        "low-contrast tissue.",
+    )
+    sift_max_features: int = Field(4096, ge=64, description="At most this many SIFT features.")
+    sift_domain_size_pooling: bool = Field(
+        True, description="Domain-size pooling of SIFT descriptors (more robust, CPU only)."
+    )
+    matcher: Literal["sequential", "exhaustive"] = Field(
+        "sequential", description="sequential: each frame with its next neighbours (video order)."
+    )
+    sequential_overlap: int = Field(
+        15, ge=1, description="Sequential matching: neighbours each frame is matched with."
+    )
+    quadratic_overlap: bool = Field(
+        True, description="Sequential matching: also match frames 2^k apart."
+    )
+    init_min_num_inliers: int = Field(
+        30, ge=8, description="Mapper: inliers the initial pair needs (COLMAP default 100)."
+    )
+    abs_pose_min_num_inliers: int = Field(
+        15, ge=6, description="Mapper: inliers a new frame needs to register (COLMAP default 30)."
+    )
+    init_min_tri_angle: float = Field(
+        2.0,
+        gt=0,
+        description="Mapper: triangulation angle (deg) of the initial pair (COLMAP default 16; "
+        "endoscopes move little between frames).",
+    )
+    min_model_size: int = Field(
+        10,
+        ge=2,
+        description="Mapper: models with fewer frames are dropped (when there are several).",
+    )
+    camera_model: CameraModelName = Field(
+        "SIMPLE_RADIAL",
+        description="COLMAP camera model estimated when the intrinsics are unknown.",
+    )
+    refine_known_intrinsics: bool = Field(
+        False,
+        description="Let bundle adjustment refine known intrinsics (default: keep them fixed).",
+    )
+    refine_principal_point: bool = Field(
+        False, description="When intrinsics are refined, refine the principal point too."
+    )
+    merge_models: bool = Field(
+        True,
+        description="When COLMAP leaves frames out (several models), continue the largest model "
+        "with relaxed registration to add them.",
+    )
+    triangulate_known: bool = Field(
+        True,
+        description="With source=gt|file: triangulate sparse points from the known poses (the "
+        "centerline stage measures the lumen radius from them; a file's own points are kept).",
+    )
+    keep_database: bool = Field(
+        False, description="Keep COLMAP's database.db in 02_poses/colmap/ (for debugging)."
+    )
+    colmap_log: bool = Field(False, description="Show COLMAP's own log on stderr.")

@@ -1,0 +1,24 @@
+"""`07_report/` (DESIGN §3): the only reader of the report stage's folder.
+
+Commands (batch, export) ask here where a case's page is, instead of spelling the file name.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+#: The one file the report stage writes.
+PAGE = "report.html"
+
+
+@dataclass(frozen=True)
+class ReportView:
+    """The report stage's published folder."""
+
+    folder: Path
+
+    @property
+    def page(self) -> Path:
+        """The self-contained HTML page (it may not exist: check `.is_file()`)."""
+        return self.folder / PAGE

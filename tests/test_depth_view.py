@@ -1,0 +1,57 @@
+"""05_depth read back through DepthView, and the preview's scaled error (shared with the report)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from endopipe.stages.depth.preview import error_map, scaled_error
+from endopipe.stages.depth.view import DepthMetrics, DepthView
+from endopipe.stages.metrics.depth import depth_sequence_metrics
+
+
+def test_scaled_error_undoes_the_unknown_scale() -> None:
+    rng = np.random.default_rng(0)
+    gt = rng.uniform(5, 50, (24, 32)).astype(np.float32)
+    gt[:4] = 0  # invalid ground truth
+    depth = gt / 7.0
+    valid = gt > 0
+    err, scale, shift = scaled_error(depth, gt, valid)
+    assert abs(scale - 7.0) < 1e-4 and shift == 0.0
+    assert np.nanmax(err) < 1e-5 and np.isnan(err[~valid]).all()
+    err, scale, shift = scaled_error(depth * 2 + 3, gt, valid, affine=True)  # relative GT
+    assert abs(scale - 3.5) < 1e-3 and abs(shift + 10.5) < 1e-2 and np.nanmax(err) < 1e-4
+    wrong = depth.copy()
+    wrong[10:, :16] *= 1.5  # half the valid pixels 50 % too deep
+    err, _, _ = scaled_error(wrong, gt, valid)
+    assert np.nanmax(err) > 0.3
+    coloured = error_map(wrong, gt)
+    assert coloured.shape == (24, 32, 3) and (coloured[:4] == 0).all()
+
+
+def test_view_reads_depth_opacity_and_metrics(tmp_path: Path) -> None:
+    (tmp_path / "depth").mkdir()
+    (tmp_path / "opacity").mkdir()
+    maps = {i: np.full((6, 8), float(i + 1), np.float32) for i in (2, 5, 11)}
+    for i, d in maps.items():
+        np.save(tmp_path / "depth" / f"{i:06d}.npy", d)
+    np.save(tmp_path / "opacity" / "000005.npy", np.ones((6, 8), np.float32))
+    view = DepthView(tmp_path)
+    assert view.indices == [2, 5, 11] and view.metrics is None
+    np.testing.assert_array_equal(view.depth(11), maps[11])
+    assert view.opacity(5) is not None and view.opacity(2) is None
+    assert view.has_depth(5) and not view.has_depth(3)
+
+    gt = [np.full((6, 8), 2.0 * (i + 1), np.float32) for i in maps]
+    metrics = depth_sequence_metrics(list(maps.values()), gt, None, list(maps))
+    metrics |= {"gt_kind": "exact", "heldout_frames": [2], "heldout_psnr": 21.5}
+    text = json.dumps(metrics, indent=2)
+    (tmp_path / "metrics.json").write_text(text)
+    read = DepthView(tmp_path).metrics
+    assert isinstance(read, DepthMetrics)
+    assert read.gt_kind == "exact" and read.frames == 3 and read.heldout_psnr == 21.5
+    assert abs(read.sequence_scaled["scale"] - 2.0) < 1e-6
+    assert read.median_scaled["abs_rel"] < 1e-6
+    assert json.dumps(read.model_dump(mode="json", exclude_none=True), indent=2) == text
