@@ -32,6 +32,12 @@ app = typer.Typer(
     help="endopipe: monocular endoscopic video -> poses, depth, mesh and an evaluation report.",
 )
 DEFAULT_WORKDIR = Path("workdir")
+#: Options several commands share, spelt once.
+WorkdirOption = Annotated[Path, typer.Option(help="Output root.")]
+ConfigOption = Annotated[
+    list[str] | None, typer.Option("--config", help="Preset name or YAML file; repeatable.")
+]
+SetOption = Annotated[list[str] | None, typer.Option("--set", help="stage.key=value; repeatable.")]
 
 
 def all_stages() -> list[type[Stage]]:
@@ -114,14 +120,10 @@ def run(
     input: Annotated[
         Path, typer.Argument(help="Video file, image folder or endopipe case folder.")
     ],
-    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    workdir: WorkdirOption = DEFAULT_WORKDIR,
     name: Annotated[str | None, typer.Option(help="Case name (default: from the input).")] = None,
-    config: Annotated[
-        list[str] | None, typer.Option("--config", help="Preset name or YAML file; repeatable.")
-    ] = None,
-    set_: Annotated[
-        list[str] | None, typer.Option("--set", help="stage.key=value; repeatable.")
-    ] = None,
+    config: ConfigOption = None,
+    set_: SetOption = None,
     intrinsics: Annotated[
         Path | None, typer.Option(help="intrinsics.json for the input's frames.")
     ] = None,
@@ -164,9 +166,9 @@ def run(
 @app.command()
 def status(
     case: Annotated[str, typer.Argument(help="Case folder or name under --workdir.")],
-    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
-    config: Annotated[list[str] | None, typer.Option("--config")] = None,
-    set_: Annotated[list[str] | None, typer.Option("--set")] = None,
+    workdir: WorkdirOption = DEFAULT_WORKDIR,
+    config: ConfigOption = None,
+    set_: SetOption = None,
 ) -> None:
     """Each stage of CASE: fresh, stale (and why) or missing, for the given config."""
     pipe = build_pipeline()
@@ -185,7 +187,7 @@ def status(
 @app.command()
 def clean(
     case: Annotated[str, typer.Argument(help="Case folder or name under --workdir.")],
-    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    workdir: WorkdirOption = DEFAULT_WORKDIR,
     stage: Annotated[
         str | None, typer.Option(help="Remove this stage and its downstream only.")
     ] = None,
@@ -207,7 +209,7 @@ def export(
         Path | None,
         typer.Option("--out", help="Output folder (default: <case>/exports/<format>)."),
     ] = None,
-    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    workdir: WorkdirOption = DEFAULT_WORKDIR,
     symlink: Annotated[
         bool, typer.Option(help="nerfstudio / colmap: symlink the images instead of copying.")
     ] = False,
@@ -292,7 +294,7 @@ def write_synth(out_dir: Path, cfg) -> object:
 
 @app.command()
 def demo(
-    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
+    workdir: WorkdirOption = DEFAULT_WORKDIR,
     frames: int = 24,
 ) -> None:
     """Synthesise a small colon case and run every stage on it."""
@@ -374,13 +376,9 @@ def batch(
     folder: Annotated[
         Path, typer.Argument(help="A data set folder, a folder of videos or cases, or one case.")
     ],
-    workdir: Annotated[Path, typer.Option(help="Output root.")] = DEFAULT_WORKDIR,
-    config: Annotated[
-        list[str] | None, typer.Option("--config", help="Preset name or YAML file; repeatable.")
-    ] = None,
-    set_: Annotated[
-        list[str] | None, typer.Option("--set", help="stage.key=value; repeatable.")
-    ] = None,
+    workdir: WorkdirOption = DEFAULT_WORKDIR,
+    config: ConfigOption = None,
+    set_: SetOption = None,
     format_: Annotated[
         str,
         typer.Option(

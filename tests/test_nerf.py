@@ -336,8 +336,8 @@ def test_stage_resumes_after_a_kill(tmp_path, monkeypatch):
     from endopipe.pipeline.runner import Pipeline
     from endopipe.pipeline.stage import Stage, Summary
     from endopipe.stages.ingest.stage import Ingest
-    from endopipe.stages.nerf.stage import Nerf
     from endopipe.stages.nerf import train as train_mod
+    from endopipe.stages.nerf.stage import Nerf
     from endopipe.stages.poses.stage import Poses
 
     class Centerline(Stage):

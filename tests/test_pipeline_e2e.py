@@ -3,18 +3,14 @@
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from pathlib import Path
 
 import pytest
 
 from endopipe.cli import build_pipeline, main
-
-#: A tiny case: a short NeRF keeps the whole pipeline at about 2.5 minutes on two CPU cores.
-#: One torch thread: the result then does not depend on the machine's load (thread count changes
-#: the order of float reductions, and a 600-step NeRF is sensitive to it).
-TINY = ["--set", "nerf.train.steps=600", "--set", "nerf.train.time_budget_s=null"]
-TINY += ["--set", "mesh.eval_samples=50000", "--set", "nerf.train.threads=1"]
+from tests.conftest import TINY, TinyRun
 
 
 def last_record(case: Path) -> dict:
@@ -26,21 +22,11 @@ def statuses(case: Path) -> dict[str, str]:
 
 
 @pytest.fixture(scope="module")
-def synth_case(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from endopipe.commands.synth import SynthConfig, generate_case
-
-    out = tmp_path_factory.mktemp("synth") / "colon"
-    generate_case(out, SynthConfig(seed=3, frames=16, width=160, height=128))
-    return out
-
-
-@pytest.fixture(scope="module")
-def first_run(synth_case: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, float]:
+def first_run(tiny_run: TinyRun, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, float]:
+    """The session's tiny run (conftest), copied: these tests re-run and change it."""
     wd = tmp_path_factory.mktemp("wd")
-    t0 = time.perf_counter()
-    args = ["run", str(synth_case / "video.mp4"), "--workdir", str(wd), "--quiet", *TINY]
-    assert main(args) == 0
-    return wd / "colon", time.perf_counter() - t0
+    case = Path(shutil.copytree(tiny_run.case, wd / tiny_run.case.name))
+    return case, tiny_run.wall_s
 
 
 def rerun(case: Path, *extra: str) -> None:

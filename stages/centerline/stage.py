@@ -1,19 +1,6 @@
 """centerline: the lumen's centre curve and radius from the camera path and the sparse points.
 
-Seed §3.3: the anatomical prior is "a generalized tube model that follows the approximate path of
-the camera". This stage estimates it once, so the NeRF stage can use it as a signed-distance
-proxy (prior.py):
-
-1. A smoothing spline through the registered camera centres (smoothing scaled to the wobble of
-   the path about a local-linear fit one radius wide), extended a little ahead of the cameras
-   (along their viewing direction) and a little behind; a line when there are few cameras.
-2. The curve is moved towards the true axis: in slices along it, a robust circle fitted to the
-   sparse points in the normal plane gives the axis offset (used where the points go round the
-   lumen); the offsets are smoothed along the curve.
-3. The radius along the curve: in slices, the distance of the points to the curve, MAD outlier
-   rejection, angle-balanced median, smoothed along the curve (sparse SfM points lie on the
-   visible wall only, so that is a fair radius estimate). Fallbacks: a global median, then a
-   default from the camera path, noted in the summary.
+Seed §3.3's tube prior (the steps are in tube.py's docstring), or an ellipsoid for a cavity.
 
 `prior: cavity` fits an ellipsoid to the points instead (robust algebraic fit, refined by
 robust least squares on the point-to-ellipsoid distance).
