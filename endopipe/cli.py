@@ -5,24 +5,28 @@ Every failure the user can act on ends as one line on stderr and a non-zero exit
 
 from __future__ import annotations
 
+import importlib
+import shlex
 import sys
 import time
 import traceback
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
-import click
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
+from rich.text import Text
 
-import endopipe.stages  # noqa: F401  (imports cv2 before anything can import pycolmap)
-from endopipe.commands.batch.case import process_case
-from endopipe.commands.batch.rows import CaseRow, CaseTask
-from endopipe.pipeline.config import default_yaml, describe_fields, load_config
 from endopipe.pipeline.errors import EndopipeError
-from endopipe.pipeline.runner import Pipeline, RunRecord, ensure_writable
-from endopipe.pipeline.stage import CaseInfo, Stage, write_json
+
+# The engine (pydantic, yaml) and the stages (torch, cv2) are imported by the commands that use
+# them: `endopipe --help` and `status` start in a fraction of a second.
+if TYPE_CHECKING:
+    from endopipe.commands.batch.rows import CaseRow, CaseTask
+    from endopipe.pipeline.runner import Pipeline, RunRecord
+    from endopipe.pipeline.stage import Stage
 
 console = Console(stderr=True)
 out = Console()
@@ -40,21 +44,36 @@ ConfigOption = Annotated[
 SetOption = Annotated[list[str] | None, typer.Option("--set", help="stage.key=value; repeatable.")]
 
 
-def all_stages() -> list[type[Stage]]:
-    """The DAG in order. Imported lazily so `endopipe --help` stays fast."""
-    from endopipe.stages.centerline.stage import Centerline
-    from endopipe.stages.depth.stage import Depth
-    from endopipe.stages.ingest.stage import Ingest
-    from endopipe.stages.mesh.stage import Mesh
-    from endopipe.stages.nerf.stage import Nerf
-    from endopipe.stages.poses.stage import Poses
-    from endopipe.stages.report.stage import Report
+#: The DAG in order: each stage's module and class.
+DAG = (
+    ("endopipe.stages.ingest.stage", "Ingest"),
+    ("endopipe.stages.poses.stage", "Poses"),
+    ("endopipe.stages.centerline.stage", "Centerline"),
+    ("endopipe.stages.nerf.stage", "Nerf"),
+    ("endopipe.stages.depth.stage", "Depth"),
+    ("endopipe.stages.mesh.stage", "Mesh"),
+    ("endopipe.stages.report.stage", "Report"),
+)
 
-    return [Ingest, Poses, Centerline, Nerf, Depth, Mesh, Report]
+
+def all_stages() -> list[type[Stage]]:
+    """The DAG's stage classes, imported (torch, cv2, pycolmap): for commands that run them."""
+    return [getattr(importlib.import_module(module), cls) for module, cls in DAG]
 
 
 def build_pipeline() -> Pipeline:
+    from endopipe.pipeline.runner import Pipeline
+
     return Pipeline(all_stages())
+
+
+def planning_pipeline() -> Pipeline:
+    """The DAG read from the stages' source, not imported: plans, configs and folders only,
+    so `status`, `clean`, `stages` and `export` start in a fraction of a second."""
+    from endopipe.pipeline.declared import declared
+    from endopipe.pipeline.runner import Pipeline
+
+    return Pipeline([declared(module, cls) for module, cls in DAG])
 
 
 def case_name_for(input_path: Path) -> str:
@@ -74,6 +93,8 @@ def prepare_case(
     input_format: str | None = None,
 ) -> Path:
     """Check the input, then create the case folder and its case.json (only then)."""
+    from endopipe.pipeline.runner import ensure_writable
+    from endopipe.pipeline.stage import CaseInfo, write_json
     from endopipe.stages.io.sources import open_input
 
     source = open_input(input_path, intrinsics, format=input_format)
@@ -137,6 +158,8 @@ def run(
     quiet: Annotated[bool, typer.Option(help="No progress output.")] = False,
 ) -> None:
     """Run the pipeline on INPUT: what is stale runs, what is fresh is reused."""
+    from endopipe.pipeline.config import load_config
+
     pipe = build_pipeline()
     for stage in (from_stage, until):
         if stage is not None:
@@ -170,18 +193,35 @@ def status(
     config: ConfigOption = None,
     set_: SetOption = None,
 ) -> None:
-    """Each stage of CASE: fresh, stale (and why) or missing, for the given config."""
-    pipe = build_pipeline()
+    """Each stage of CASE: fresh, stale (and why), missing or running. Judged against the
+    configuration CASE was last run with; with --config/--set: would that config re-run?"""
+    from endopipe.pipeline.config import load_config
+
+    pipe = planning_pipeline()
     case_dir = resolve_case(case, workdir)
-    configs = load_config(pipe.stages, config or [], set_ or [])
-    table = Table(title=f"{case_dir.name}")
+    given = bool(config or set_)
+    configs = load_config(pipe.stages, config or [], set_ or []) if given else None
+    plan = pipe.status(case_dir, configs)
+    running = pipe.in_progress(case_dir)
+    against = "the given --config/--set" if given else "the configuration of its last run"
+    table = Table(title=f"{case_dir.name}", caption=f"judged against {against}")
     for col in ("stage", "state", "why", "folder"):
         table.add_column(col)
-    for p in pipe.status(case_dir, configs):
+    for p in plan:
         state = "fresh" if p.fresh else ("missing" if p.reason == "missing" else "stale")
-        colour = {"fresh": "green", "stale": "yellow", "missing": "red"}[state]
-        table.add_row(p.stage, f"[{colour}]{state}[/{colour}]", p.reason, p.folder)
+        why = p.reason
+        if running is not None and running.running == p.stage:
+            since = running.started.split("T")[-1]
+            state, why = "running", f"pid {running.pid} on {running.host}, run started {since}"
+        colour = {"fresh": "green", "stale": "yellow", "missing": "red", "running": "cyan"}[state]
+        table.add_row(p.stage, f"[{colour}]{state}[/{colour}]", escape(why), p.folder)
     out.print(table)
+    if running is not None:
+        out.print(
+            f"a run is in progress (pid {running.pid} on {running.host}): {running.running} is "
+            "running; stages after it are judged by what is on disk now",
+            highlight=False,
+        )
 
 
 @app.command()
@@ -193,7 +233,7 @@ def clean(
     ] = None,
 ) -> None:
     """Remove a case's stage outputs (all, or one stage and what depends on it)."""
-    pipe = build_pipeline()
+    pipe = planning_pipeline()
     case_dir = resolve_case(case, workdir)
     if stage is not None:
         pipe.index(stage)
@@ -225,7 +265,7 @@ def export(
     from endopipe.commands.export import export_case
 
     case_dir = resolve_case(case, workdir)
-    folders = build_pipeline().folders(case_dir)
+    folders = planning_pipeline().folders(case_dir)
     result = export_case(
         case_dir, format_, out_dir, folders=folders, symlink=symlink, endonerf_axes=endonerf_axes
     )
@@ -239,20 +279,26 @@ def list_stages(
     yaml_: Annotated[bool, typer.Option("--yaml", help="Print configs/default.yaml.")] = False,
 ) -> None:
     """Every stage with its config fields, types, defaults and help."""
-    pipe = build_pipeline()
+    from endopipe.pipeline.config import default_yaml, describe_fields
+
+    pipe = planning_pipeline()
     if yaml_:
         out.print(default_yaml(pipe.stages), markup=False, highlight=False, soft_wrap=True)
         return
     for stage in pipe.stages:
         needs = ", ".join(stage.needs) or "input"
         out.print(f"[bold]{pipe.folder_name(stage.name)}[/bold]  needs: {needs}  v{stage.version}")
-        out.print(f"  {stage.describe()}")
-        table = Table(show_header=True, box=None, padding=(0, 2))
-        for col in ("key", "type", "default", "help"):
-            table.add_column(col)
+        out.print(f"  {stage.describe()}", markup=False, highlight=False, soft_wrap=True)
+        # one line per key (grep-able, never truncated: `endopipe stages | grep steps`),
+        # its help below; the default is written as --set and config files take it
         for key, type_name, default, help_text in describe_fields(stage.Config):
-            table.add_row(f"{stage.name}.{key}", type_name, default, help_text)
-        out.print(table)
+            line = Text("  ")
+            line.append(f"{stage.name}.{key}", style="bold")
+            line.append(f" = {default}  [{type_name}]")
+            out.print(line, highlight=False, soft_wrap=True)
+            if help_text:
+                out.print(f"      {help_text}", markup=False, highlight=False, soft_wrap=True)
+        out.print()
 
 
 @app.command()
@@ -268,6 +314,7 @@ def synth(
     from pydantic import ValidationError
 
     from endopipe.commands.synth import SynthConfig
+    from endopipe.pipeline.runner import ensure_writable
 
     try:
         cfg = SynthConfig(seed=seed, frames=frames, width=width, height=height, shape=shape)
@@ -299,6 +346,8 @@ def demo(
 ) -> None:
     """Synthesise a small colon case and run every stage on it."""
     from endopipe.commands.synth import SynthConfig
+    from endopipe.pipeline.config import load_config
+    from endopipe.pipeline.runner import ensure_writable
 
     ensure_writable(workdir)
     case_src = workdir / "demo_input"
@@ -336,6 +385,8 @@ def bench(
 ) -> None:
     """The paper's Table 1 on fixed-seed synthetic cases with ablations; CSV and markdown."""
     from endopipe.commands.bench import markdown_table, plan, run_bench, write_csv
+    from endopipe.pipeline.config import load_config
+    from endopipe.pipeline.runner import ensure_writable
 
     ensure_writable(workdir)
     pipe = build_pipeline()
@@ -368,6 +419,8 @@ def _has_preset(name: str) -> bool:
 
 def batch_case(task: CaseTask) -> CaseRow:
     """One case of `endopipe batch` with this DAG. Top-level, so executors pickle it by name."""
+    from endopipe.commands.batch.case import process_case
+
     return process_case(task, build_pipeline, prepare_case)
 
 
@@ -428,37 +481,54 @@ def batch(
     )
 
 
+#: The exit code of a run stopped by Ctrl-C (SIGINT), as shells report it (128 + 2).
+INTERRUPTED = 130
+
+
 def _click_errors() -> tuple[type[Exception], ...]:
-    """Usage errors: click's, and those of the click that newer typer releases vendor."""
-    kinds: list[type[Exception]] = [click.ClickException]
+    """Usage errors: those of the click that newer typer releases vendor, or click's own.
+    (Imported here: click is not needed, nor loaded, unless a command line is wrong.)"""
     try:
-        from typer._click.exceptions import ClickException as VendoredClickException
+        from typer._click.exceptions import ClickException
     except ImportError:  # typer < 0.20 uses click itself
-        pass
-    else:
-        kinds.append(VendoredClickException)
-    return tuple(kinds)
+        from click import ClickException
+    return (ClickException,)
+
+
+def interrupted(argv: list[str] | None) -> int:
+    """Ctrl-C: say so, and how to go on; finished stages are kept and a re-run resumes."""
+    command = shlex.join(["endopipe", *(sys.argv[1:] if argv is None else argv)])
+    console.print(
+        f"[bold red]interrupted[/bold red]: finished stages are kept; "
+        f"to resume, run the same command again: {escape(command)}",
+        highlight=False,
+        soft_wrap=True,
+    )
+    return INTERRUPTED
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point: one clear line and an exit code for every failure, never a traceback."""
+    """Entry point: one clear line and an exit code for every failure, never a traceback.
+
+    With standalone_mode=False typer returns an exit code instead of exiting; Ctrl-C comes
+    back as 130 (typer turns KeyboardInterrupt into Exit(130)), and must not end as 0."""
     try:
-        app(args=argv, standalone_mode=False)
-        return 0
+        code = app(args=argv, standalone_mode=False)
     except EndopipeError as e:
-        console.print(f"[bold red]error:[/bold red] {e}", highlight=False, soft_wrap=True)
+        console.print(
+            f"[bold red]error:[/bold red] {escape(str(e))}", highlight=False, soft_wrap=True
+        )
         return e.exit_code
-    except click.exceptions.Exit as e:
+    except typer.Exit as e:
         return e.exit_code
-    except click.exceptions.Abort:
+    except typer.Abort:
         console.print("[bold red]aborted[/bold red]")
-        return 130
+        return INTERRUPTED
     except _click_errors() as e:
-        console.print(f"[bold red]error:[/bold red] {e.format_message()}", soft_wrap=True)
+        console.print(f"[bold red]error:[/bold red] {escape(e.format_message())}", soft_wrap=True)
         return e.exit_code
     except KeyboardInterrupt:
-        console.print("[bold red]interrupted[/bold red]; re-run the same command to resume")
-        return 130
+        return interrupted(argv)
     except Exception as e:  # an endopipe bug: one line here, the traceback in a log file
         log = Path.home() / ".cache" / "endopipe" / "last_error.log"
         try:
@@ -468,11 +538,14 @@ def main(argv: list[str] | None = None) -> int:
         except OSError:
             where = ""
         console.print(
-            f"[bold red]internal error:[/bold red] {type(e).__name__}: {e}{where}",
+            f"[bold red]internal error:[/bold red] {type(e).__name__}: {escape(str(e))}{where}",
             highlight=False,
             soft_wrap=True,
         )
         return 1
+    if code == INTERRUPTED:
+        return interrupted(argv)
+    return code if isinstance(code, int) else 0
 
 
 def entry() -> None:

@@ -17,6 +17,8 @@ from typing import Any
 from pydantic import BaseModel
 
 MANIFEST = "manifest.json"
+#: freshness()'s reason when the key differs; explain_change() says which setting or input.
+KEY_CHANGED = "config or upstream changed"
 
 
 def canonical_json(data: Any) -> str:
@@ -109,7 +111,7 @@ def freshness(folder: Path, key: str, verify_digests: bool = False) -> tuple[boo
     if manifest is None:
         return False, "no manifest"
     if manifest.key != key:
-        return False, "config or upstream changed"
+        return False, KEY_CHANGED
     for rel, entry in manifest.files.items():
         f = folder / rel
         if not f.is_file():
@@ -119,6 +121,42 @@ def freshness(folder: Path, key: str, verify_digests: bool = False) -> tuple[boo
         if verify_digests and digest_file(f) != entry.sha256:
             return False, f"file changed: {rel}"
     return True, "fresh"
+
+
+def flatten(data: dict, prefix: str = "") -> dict[str, Any]:
+    """Nested settings as dotted keys (`train.steps`), so a change can be named by its key."""
+    out: dict[str, Any] = {}
+    for k, v in data.items():
+        if isinstance(v, dict) and v:
+            out.update(flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def config_change(manifest: Manifest, version: int, config: dict, limit: int = 3) -> str | None:
+    """The stage's own change behind a new key, in the user's words (`train.steps 600 -> 1500`,
+    or a new code version); None when its config and version are those of its manifest."""
+    if manifest.version != version:
+        return f"{manifest.stage} code changed (version {manifest.version} -> {version})"
+    old, new = flatten(manifest.config), flatten(config)
+    keys = sorted(old.keys() | new.keys())
+    changed = [k for k in keys if old.get(k, _ABSENT) != new.get(k, _ABSENT)]
+    if not changed:
+        return None
+    parts = [f"{manifest.stage}.{k} {_show(old, k)} -> {_show(new, k)}" for k in changed[:limit]]
+    more = f" (+{len(changed) - limit} more)" if len(changed) > limit else ""
+    return ", ".join(parts) + more
+
+
+_ABSENT = object()
+
+
+def _show(values: dict[str, Any], key: str, width: int = 40) -> str:
+    if key not in values:
+        return "(unset)"
+    text = json.dumps(values[key], default=str)
+    return text if len(text) <= width else text[: width - 1] + "…"
 
 
 def temp_dir_for(final: Path, key: str) -> Path:

@@ -151,18 +151,67 @@ def _require_stage(name: str, by_name: Mapping, origin: str) -> None:
         raise ConfigError(f"unknown stage '{name}' ({origin}); stages: {', '.join(by_name)}")
 
 
+#: In a case folder: the resolved configuration of its last run (`endopipe status` judges
+#: against it; it is also a valid --config file, to repeat the run).
+RUN_CONFIG = "config.yaml"
+
+
+def save_run_config(case_dir: Path, configs: Mapping[str, StageConfig]) -> Path:
+    """Record what a run was asked to do, written whole (temporary file, then rename)."""
+    path = Path(case_dir) / RUN_CONFIG
+    data = {name: cfg.model_dump(mode="json") for name, cfg in configs.items()}
+    header = (
+        "# The resolved configuration of this case's last run (defaults, presets, --set).\n"
+        "# `endopipe status` judges against it; `endopipe run --config THIS_FILE` repeats it.\n"
+    )
+    tmp = path.with_name(f".{RUN_CONFIG}.tmp")
+    tmp.write_text(header + yaml.safe_dump(data, sort_keys=False, width=1000))
+    tmp.replace(path)
+    return path
+
+
+def load_run_config(stages: Sequence[type[Stage]], case_dir: Path) -> dict[str, StageConfig] | None:
+    """The configuration recorded by the case's last run; None when it has none (older runs)."""
+    path = Path(case_dir) / RUN_CONFIG
+    if not path.is_file():
+        return None
+    try:
+        return load_config(stages, [str(path)], use_default_file=False)  # it is whole
+    except ConfigError as e:
+        raise ConfigError(
+            f"{e}; the last run's configuration no longer loads: pass --config/--set to status, "
+            "or re-run the case"
+        ) from None
+
+
 def describe_fields(model: type[BaseModel], prefix: str = "") -> list[tuple[str, str, str, str]]:
-    """(key, type, default, help) for every field, nested models flattened with dots."""
+    """(key, type, default, help) for every leaf setting, nested groups flattened with dots
+    (`train.steps`); defaults as YAML, the form --set and config files take."""
+    return _describe(model(), prefix)
+
+
+def _describe(model: BaseModel, prefix: str) -> list[tuple[str, str, str, str]]:
     rows = []
-    for name, field in model.model_fields.items():
-        sub = _submodel(field.annotation)
-        key = f"{prefix}{name}"
-        if sub is not None and isinstance(field.default, BaseModel):
-            rows.extend(describe_fields(sub, prefix=f"{key}."))
+    for name, field in type(model).model_fields.items():
+        value = getattr(model, name)
+        if isinstance(value, BaseModel):
+            rows.extend(_describe(value, f"{prefix}{name}."))
             continue
-        type_name = _type_name(field.annotation)
-        rows.append((key, type_name, repr(field.default), field.description or ""))
+        rows.append(
+            (
+                f"{prefix}{name}",
+                _type_name(field.annotation),
+                _yaml_value(value),
+                field.description or "",
+            )
+        )
     return rows
+
+
+def _yaml_value(value: Any) -> str:
+    """One value as YAML flow text: `null`, `true`, `[0.15, 0.3]`, `colmap`."""
+    dumped = yaml.safe_dump(_jsonable(value), default_flow_style=True, width=1000).strip()
+    return dumped.removesuffix("\n...").removesuffix("...").strip()
 
 
 def _type_name(annotation: Any) -> str:

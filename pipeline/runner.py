@@ -19,7 +19,9 @@ from pydantic import BaseModel
 from rich.console import Console
 
 from endopipe.pipeline.cache import (
+    KEY_CHANGED,
     Manifest,
+    config_change,
     freshness,
     list_files,
     publish,
@@ -27,6 +29,7 @@ from endopipe.pipeline.cache import (
     stale_temps,
     temp_dir_for,
 )
+from endopipe.pipeline.config import load_config, load_run_config, save_run_config
 from endopipe.pipeline.errors import CaseLocked, EndopipeError
 from endopipe.pipeline.stage import CaseInfo, Stage, StageConfig, StageContext, write_json
 
@@ -74,6 +77,8 @@ class RunRecord(BaseModel):
     ok: bool = False
     error: str | None = None
     host: str = platform.node()
+    pid: int | None = None  # the process that ran it: with finished None, still running or killed
+    running: str | None = None  # the stage running now (while finished is None)
     python: str = platform.python_version()
     packages: dict[str, str] = {}
     stages: list[StageRecord] = []
@@ -203,6 +208,7 @@ class Pipeline:
             self.index(from_stage)
         keys: dict[str, str] = {}
         dirty: set[str] = set()
+        causes: dict[str, list[str]] = {}  # stage -> the stages whose change made its key new
         plan = []
         for stage in self.selection(until):
             cfg = configs[stage.name].model_dump(mode="json")
@@ -213,10 +219,13 @@ class Pipeline:
             keys[stage.name] = key
             folder = case_dir / self.folder_name(stage.name)
             fresh, reason = freshness(folder, key)
+            if reason == KEY_CHANGED:
+                reason, causes[stage.name] = _why_changed(folder, stage, cfg, upstream, causes)
             if stage.name in forced:
                 fresh, reason = False, "forced" if force else f"--from {from_stage}"
             elif fresh and any(n in dirty for n in stage.needs):
-                fresh, reason = False, "upstream re-runs"
+                rerun = ", ".join(n for n in stage.needs if n in dirty)
+                fresh, reason = False, f"upstream {rerun} re-runs"
             if not fresh:
                 dirty.add(stage.name)
             plan.append(
@@ -247,13 +256,7 @@ class Pipeline:
         console = console or Console(stderr=True)
         case = CaseInfo.load(case_dir)
         lock = FileLock(str(case_dir / ".lock"))
-        try:
-            lock.acquire(timeout=-1 if wait_for_lock else 0)
-        except Timeout:
-            raise CaseLocked(
-                f"case {case.name} is being processed by another endopipe run; "
-                "wait for it to finish, or pass --wait to queue behind it"
-            ) from None
+        _acquire(lock, case.name, wait_for_lock, console)
         try:
             plan = self.plan(case_dir, case, configs, until, from_stage, force)
             if dry_run:
@@ -269,6 +272,7 @@ class Pipeline:
                         for p in plan
                     ],
                 )
+            save_run_config(case_dir, configs)
             return self._execute(case_dir, case, configs, plan, console, quiet)
         finally:
             lock.release()
@@ -283,10 +287,16 @@ class Pipeline:
         quiet: bool,
     ) -> RunRecord:
         record = RunRecord(
-            case=case.name, input=case.input, started=_now(), packages=package_versions()
+            case=case.name,
+            input=case.input,
+            started=_now(),
+            pid=os.getpid(),
+            packages=package_versions(),
         )
         t_run = time.perf_counter()
         keys = {p.stage: p.key for p in plan}
+        stamp = dt.datetime.now().strftime("%Y%m%dT%H%M%S_%f")
+        record_path = case_dir / "runs" / f"{stamp}.json"
         try:
             for p in plan:
                 stage_cls = self.by_name[p.stage]
@@ -299,6 +309,11 @@ class Pipeline:
                     continue
                 if not quiet:
                     console.print(f"[bold cyan]▶ {p.stage:<11}[/bold cyan] running ({p.reason})")
+                # the record so far (finished: None) is on disk while a stage runs: the report
+                # stage shows its own run, status can see a run in progress
+                record.wall_s = time.perf_counter() - t_run
+                record.running = p.stage
+                _save_record(record_path, record)
                 rec = self._run_stage(case_dir, case, stage_cls, configs, p, keys, console, quiet)
                 record.stages.append(rec)
                 if not quiet:
@@ -318,11 +333,9 @@ class Pipeline:
             raise
         finally:
             record.finished = _now()
+            record.running = None
             record.wall_s = time.perf_counter() - t_run
-            runs = case_dir / "runs"
-            runs.mkdir(exist_ok=True)
-            stamp = dt.datetime.now().strftime("%Y%m%dT%H%M%S_%f")
-            write_json(runs / f"{stamp}.json", record.model_dump(mode="json"))
+            _save_record(record_path, record)
         return record
 
     def _run_stage(
@@ -387,8 +400,41 @@ class Pipeline:
             summary=manifest.summary,
         )
 
-    def status(self, case_dir: Path, configs: dict[str, StageConfig]) -> list[PlannedStage]:
+    def status(
+        self, case_dir: Path, configs: dict[str, StageConfig] | None = None
+    ) -> list[PlannedStage]:
+        """Each stage's state against `configs` ("would this config re-run?"), by default against
+        the configuration the case was last run with."""
+        if configs is None:
+            configs = self.recorded_configs(case_dir)
         return self.plan(case_dir, CaseInfo.load(case_dir), configs)
+
+    def recorded_configs(self, case_dir: Path) -> dict[str, StageConfig]:
+        """The last run's configuration (<case>/config.yaml); for a case run before it was
+        recorded, each stage's own config from its manifest, defaults where none ran."""
+        recorded = load_run_config(self.stages, case_dir)
+        if recorded is not None:
+            return recorded
+        configs = load_config(self.stages, use_default_file=False)
+        for stage in self.stages:
+            manifest = self.manifest(case_dir, stage.name)
+            if manifest is not None:
+                try:
+                    configs[stage.name] = stage.Config.model_validate(manifest.config)
+                except ValueError:  # written by another version: judge against the defaults
+                    pass
+        return configs
+
+    def in_progress(self, case_dir: Path) -> RunRecord | None:
+        """The run working on this case now (its record: pid, host, the stage running), if any.
+        A record left unfinished by a killed process does not count."""
+        runs = read_runs(case_dir, limit=1)
+        if not runs or runs[0].finished is not None or runs[0].pid is None:
+            return None
+        run = runs[0]
+        if run.host == platform.node() and not _alive(run.pid, run.started):
+            return None
+        return run
 
     def clean(self, case_dir: Path, stage: str | None) -> list[str]:
         names = [s.name for s in self.stages] if stage is None else sorted(self.downstream(stage))
@@ -400,6 +446,67 @@ class Pipeline:
                     shutil.rmtree(path)
                     removed.append(path.name)
         return removed
+
+
+def _save_record(path: Path, record: RunRecord) -> None:
+    """Write the run record whole (temporary file, then rename): a reader never sees half."""
+    path.parent.mkdir(exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    write_json(tmp, record.model_dump(mode="json"))
+    os.replace(tmp, path)
+
+
+def _alive(pid: int, started: str) -> bool:
+    """The process `pid` exists and is the one that started at `started` (not a reused pid)."""
+    try:
+        created = psutil.Process(pid).create_time()
+    except psutil.Error:
+        return False
+    return created <= dt.datetime.fromisoformat(started).timestamp() + 1
+
+
+def _why_changed(
+    folder: Path,
+    stage: type[Stage],
+    config: dict,
+    upstream: dict[str, str],
+    causes: dict[str, list[str]],
+) -> tuple[str, list[str]]:
+    """Why a stage's key is new, and the stages where the change began: its own setting
+    (`nerf.train.steps 600 -> 1500`) or the upstream stage that changed first (`upstream
+    ingest changed`, not every stage between)."""
+    manifest = Manifest.load(folder)
+    if manifest is None:
+        return KEY_CHANGED, [stage.name]
+    own = config_change(manifest, stage.version, config)
+    if own is not None:
+        return own, [stage.name]
+    moved = [n for n in upstream if manifest.upstream.get(n) != upstream[n]]
+    if not moved:
+        return ("input changed" if not upstream else KEY_CHANGED), [stage.name]
+    roots = list(dict.fromkeys(r for n in moved for r in causes.get(n, [n])))
+    return f"upstream {', '.join(roots)} changed", roots
+
+
+def _acquire(lock: FileLock, case: str, wait: bool, console: Console) -> None:
+    """The case's lock; when another run holds it, fail in one line or, with --wait, say
+    that we wait (a silent wait looks like a hang)."""
+    try:
+        lock.acquire(timeout=0)
+        return
+    except Timeout:
+        if not wait:
+            raise CaseLocked(
+                f"another endopipe run is processing case '{case}'; wait for it to finish, "
+                "or pass --wait to queue behind it"
+            ) from None
+    console.print(
+        f"waiting for the other endopipe run on case '{case}' to finish "
+        "(`endopipe status` shows it; Ctrl-C stops waiting)",
+        markup=False,
+        highlight=False,
+    )
+    lock.acquire(timeout=-1)
 
 
 def _now() -> str:

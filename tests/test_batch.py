@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from endopipe.cli import batch_case, main
@@ -82,6 +83,7 @@ def check_first_run(workdir: Path, code: int) -> dict[str, dict[str, str]]:
     assert rows["synth__colon"]["gt_kind"] == "exact"
     broken = rows[BROKEN]
     assert broken["status"] == "failed" and broken["reader"] == "video"
+    assert broken["failed_stage"] == "ingest"  # the stage that reads the input
     assert "broken.mp4" in broken["reason"] and "\n" not in broken["reason"]
     assert "Traceback" not in broken["reason"] and "internal error" not in broken["reason"]
     page = (workdir / "batch.html").read_text()
@@ -91,25 +93,28 @@ def check_first_run(workdir: Path, code: int) -> dict[str, dict[str, str]]:
     return rows
 
 
-def check_second_run(workdir: Path, code: int) -> None:
+def check_second_run(workdir: Path, code: int, first: dict[str, dict[str, str]]) -> None:
     assert code == 3  # the broken case is tried again and fails again
     rows = read_csv(workdir)
     for name in GOOD:
         assert rows[name]["status"] == "ok" and rows[name]["stages_ran"] == "", rows[name]
         assert rows[name]["stages_cached"] == "ingest"
-    assert rows[BROKEN]["status"] == "failed"
+        # wall_s stays the time of the run that made the outputs; this batch's own is apart
+        assert rows[name]["wall_s"] == first[name]["wall_s"]
+        assert 0 < float(rows[name]["this_batch_s"]) < 5
+    assert rows[BROKEN]["status"] == "failed" and rows[BROKEN]["failed_stage"] == "ingest"
 
 
 def test_local_batch_then_rerun_runs_nothing(batch_folder: Path, tmp_path: Path, capsys) -> None:
     wd = tmp_path / "wd"
     code, first = run_batch(batch_folder, wd, "--jobs", "2")
     out = capsys.readouterr()
-    check_first_run(wd, code)
+    rows = check_first_run(wd, code)
     assert "hamlyn" in out.out and "simcol3d" in out.out and "c3vd" in out.out  # reader picked
     assert "error" in out.err.splitlines()[-1] and "1 of 5 case(s) failed" in out.err
     stamps = {n: (wd / n / "01_ingest" / "manifest.json").stat().st_mtime_ns for n in GOOD}
     code, second = run_batch(batch_folder, wd, "--jobs", "2")
-    check_second_run(wd, code)
+    check_second_run(wd, code, rows)
     assert stamps == {n: (wd / n / "01_ingest" / "manifest.json").stat().st_mtime_ns for n in GOOD}
     assert second < first / 2, (first, second)  # nothing to do: no worker is even started
     print(f"local executor: first {first:.1f} s, second {second:.1f} s", file=sys.stderr)
@@ -131,10 +136,10 @@ def test_slurm_executor_through_submitit_local(batch_folder: Path, tmp_path: Pat
     cfg.write_text("slurm:\n  cluster: local\n  gpus_per_node: 0\n  timeout_min: 10\n")
     extra = ("--executor", "slurm", "--cluster-config", str(cfg), "--jobs", "2")
     code, first = run_batch(batch_folder, wd, *extra)
-    check_first_run(wd, code)
+    rows = check_first_run(wd, code)
     assert list((wd / ".batch" / "slurm").glob("*/*_log.out"))  # submitit's logs, in the workdir
     code, second = run_batch(batch_folder, wd, *extra)
-    check_second_run(wd, code)
+    check_second_run(wd, code, rows)
     print(f"slurm (submitit local): first {first:.1f} s, second {second:.1f} s", file=sys.stderr)
 
 
@@ -173,9 +178,9 @@ def test_ray_executor_on_a_local_ray_cluster(batch_folder: Path, tmp_path: Path)
     pytest.importorskip("ray")
     wd = tmp_path / "wd"
     code, first = run_batch(batch_folder, wd, "--executor", "ray", "--jobs", "2")
-    check_first_run(wd, code)
+    rows = check_first_run(wd, code)
     code, second = run_batch(batch_folder, wd, "--executor", "ray", "--jobs", "2")
-    check_second_run(wd, code)
+    check_second_run(wd, code, rows)
     print(f"ray (local cluster): first {first:.1f} s, second {second:.1f} s", file=sys.stderr)
 
 
@@ -261,3 +266,29 @@ def test_batch_page_links_each_case_to_its_report(tmp_path: Path) -> None:
     assert "<td>0.2</td>" in page  # the mean row of abs_rel
     write_csv(rows, tmp_path / "batch.csv")
     assert read_csv(tmp_path)["a"]["report"] == "a/07_report/report.html"
+
+
+def test_rows_name_the_failed_stage_and_keep_the_wall_time_of_the_outputs(tmp_path: Path) -> None:
+    """batch.csv's columns from one case function: a failure names its stage (also when the
+    input cannot even be opened), and a cached re-run keeps the time the outputs took."""
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    good = write_video(videos / "good.mp4", textured_frames(8, 64, 48))
+    write_video(videos / "black.mp4", [np.zeros((48, 64, 3), np.uint8)] * 8)
+    (videos / "broken.mp4").write_bytes(good.read_bytes()[:200])
+
+    def task(name: str, **update) -> CaseTask:
+        return CaseTask(
+            name=name, input=str(videos / f"{name}.mp4"), reader="video",
+            workdir=str(tmp_path / "wd"), configs={}, until="ingest", **update,
+        )  # fmt: skip
+
+    for name, reason in (("broken", "cannot read"), ("black", "are blank")):
+        row = batch_case(task(name))
+        assert (row.status, row.failed_stage) == ("failed", "ingest"), row
+        assert reason in row.reason and row.wall_s == row.this_batch_s > 0
+    first = batch_case(task("good"))
+    assert first.status == "ok" and first.failed_stage is None and first.wall_s > 0
+    again = batch_case(task("good", check_only=True))  # what a re-run does with a done case
+    assert again.status == "ok" and again.stages_cached == ["ingest"]
+    assert again.wall_s == first.wall_s and again.this_batch_s < first.this_batch_s

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -118,3 +120,80 @@ def test_usage_errors_are_one_line_exit_2(tmp_path: Path, capsys, args, expect) 
     assert code == 2, out
     assert "internal error" not in out
     assert_clean_failure(code, out, tmp_path, expect)
+
+
+def _image_folder(folder: Path, sizes: list[tuple[int, int]]) -> Path:
+    """PNG frames of the given (width, height), in order."""
+    import cv2
+
+    folder.mkdir()
+    for i, (w, h) in enumerate(sizes):
+        cv2.imwrite(str(folder / f"frame_{i:03d}.png"), textured_frames(1, w, h, seed=i)[0])
+    return folder
+
+
+def test_mixed_image_sizes_are_an_input_error(tmp_path: Path, capsys) -> None:
+    """One camera, one resolution: refused in one line (exit 2) before a case folder exists."""
+    images = _image_folder(tmp_path / "imgs", [(160, 128)] * 5 + [(240, 200)] * 2)
+    wd = tmp_path / "wd"
+    code, out = run_cli(capsys, "run", str(images), "--workdir", str(wd))
+    assert code == 2, out
+    assert "internal error" not in out
+    assert_clean_failure(code, out, wd, "images differ in size")
+    assert "frame_005.png is 240x200" in out and "160x128" in out
+    assert not (wd / "imgs").exists(), "nothing is written for an input that cannot be used"
+
+
+def test_too_few_frames_names_only_settings_that_dropped_frames(tmp_path: Path, capsys) -> None:
+    """With stride 1, "lower the stride" is no advice; with stride 2 it is, with its value."""
+    one = write_video(tmp_path / "one.mp4", textured_frames(1))
+    code, out = run_cli(capsys, "run", str(one), "--workdir", str(tmp_path / "wd"))
+    assert_clean_failure(code, out, tmp_path / "wd", "usable frame")
+    assert "stride" not in out and "longer video" in out
+    four = write_video(tmp_path / "four.mp4", textured_frames(4))
+    args = ["run", str(four), "--workdir", str(tmp_path / "wd2"), "--set", "ingest.stride=2"]
+    code, out = run_cli(capsys, *args, "--set", "ingest.drop_duplicates=false")
+    assert_clean_failure(code, out, tmp_path / "wd2", "usable frame")
+    assert "lower --set ingest.stride (now 2)" in out
+
+
+def test_invalid_intrinsics_name_the_field(tmp_path: Path, video: Path, capsys) -> None:
+    k = tmp_path / "k.json"
+    k.write_text('{"width": 160, "height": 128, "fx": -500, "fy": 500, "cx": 80, "cy": 64}')
+    args = ["run", str(video), "--intrinsics", str(k), "--workdir", str(tmp_path / "wd")]
+    code, out = run_cli(capsys, *args)
+    assert_clean_failure(code, out, tmp_path / "wd", "fx: must be > 0, got -500")
+    assert "validation error" not in out
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "endopipe", *args]
+
+
+def test_locked_case_names_it_and_wait_says_it_waits(tmp_path: Path) -> None:
+    """A case named like a common word reads right; --wait says what it waits for."""
+    from filelock import FileLock
+
+    video = write_video(tmp_path / "case.mp4", textured_frames(12))
+    wd = tmp_path / "wd"
+    run_args = _cli("run", str(video), "--workdir", str(wd), "--until", "ingest", "--quiet")
+    assert subprocess.run([*run_args, "--dry-run"], capture_output=True).returncode == 0
+    with FileLock(str(wd / "case" / ".lock")):  # another run holds the case
+        busy = subprocess.run(run_args, capture_output=True, text=True, timeout=120)
+        assert busy.returncode == 4, busy.stderr
+        assert "another endopipe run is processing case 'case'" in busy.stderr
+        assert "case case" not in busy.stderr
+        waiting = subprocess.Popen([*run_args, "--wait"], stderr=subprocess.PIPE, text=True)
+        first_line = waiting.stderr.readline()
+        assert "waiting for the other endopipe run on case 'case'" in first_line
+    _, rest = waiting.communicate(timeout=120)
+    assert waiting.returncode == 0, rest
+
+
+def test_an_error_message_keeps_its_square_brackets(tmp_path: Path, capsys) -> None:
+    """Messages are printed as text, not rich markup: `a[b]c` in one must reach the user
+    whole (as markup, `[b]` is a bold tag and vanishes)."""
+    code = main(["run", str(tmp_path), "--set", "nerf.train.steps=a[b]c"])
+    err = capsys.readouterr()
+    assert code == 2
+    assert "nerf.train.steps" in err.err and "(got 'a[b]c')" in err.err, err

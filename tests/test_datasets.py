@@ -515,11 +515,24 @@ def test_digest_is_the_frames_not_the_whole_folder(tmp_path: Path) -> None:
     assert open_input(seq).digest() != before
 
 
-def test_c3vd_preview_is_read_in_place_with_relative_ground_truth(shared_data: Path) -> None:
+@pytest.fixture(params=["in place", "through a symlink"])
+def c3vd_preview(request: pytest.FixtureRequest, shared_data: Path, tmp_path: Path) -> Path:
+    """The shared C3VD preview folder, as it is and through a symlink (a normal data setup)."""
     folder = shared_data / "c3vd_v3_preview"
+    if request.param == "in place":
+        return folder
+    link = tmp_path / "data" / "c3vd_v3_preview"
+    link.parent.mkdir()
+    link.symlink_to(folder, target_is_directory=True)
+    return link
+
+
+def test_c3vd_preview_is_read_in_place_with_relative_ground_truth(c3vd_preview: Path) -> None:
+    folder = c3vd_preview
     assert detect_format(folder) == "c3vd_preview"
     source = open_input(folder)
-    assert source.frame_count() == 75 and source.gt_dir == folder
+    # Data sets are read through their real path (it lands in case.json), wherever the link is.
+    assert source.frame_count() == 75 and source.gt_dir == folder.resolve()
     gt = open_ground_truth(folder)
     assert gt.kind == "relative" and not gt.has_poses()
     first = next(iter(source.frames()))
@@ -545,3 +558,18 @@ def test_affine_invariant_metrics_ignore_scale_and_shift_only() -> None:
     assert wrong["spearman"] < -0.999 and wrong["abs_rel"] > 0.05
     noisy = affine_invariant_metrics(depth * rng.uniform(0.9, 1.1, depth.shape), proxy)
     assert 0.01 < noisy["abs_rel"] < 0.1 and 0.9 < noisy["spearman"] < 1.0
+
+
+def test_case_ground_truth_is_recorded_by_its_absolute_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A case given by a relative path: case.json's gt_dir still opens from any folder."""
+    from endopipe.cli import main
+
+    gt_dir = (write_endopipe_case(tmp_path / "data" / "colon") / "gt").resolve()
+    monkeypatch.chdir(tmp_path / "data")
+    assert open_input(Path("colon")).gt_dir == gt_dir
+    args = ["run", "colon", "--workdir", str(tmp_path / "wd"), "--until", "ingest", "--quiet"]
+    assert main(args) == 0
+    info = json.loads((tmp_path / "wd" / "colon" / "case.json").read_text())
+    assert info["gt_dir"] == str(gt_dir)

@@ -170,3 +170,27 @@ def test_config_files_layer_in_order(tmp_path: Path) -> None:
     f2.write_text("a:\n  value: 4\n")
     cfg = load_config(PIPE.stages, [str(f1), str(f2)], ["a.mode=z"], use_default_file=False)
     assert cfg["a"].value == 4 and cfg["a"].mode == "z"
+
+
+def test_status_names_the_changed_key_and_the_upstream(case: Path) -> None:
+    run(case)
+    plan = {p.stage: p for p in PIPE.status(case, configs("a.value=5", "a.mode=y"))}
+    assert plan["a"].reason == 'a.mode "x" -> "y", a.value 1 -> 5'
+    assert plan["b"].reason == "upstream a changed"
+    assert plan["c"].reason == "upstream a changed"  # where the change began, not b
+
+
+def test_status_judges_against_the_last_run_config(case: Path) -> None:
+    run(case, "a.value=5")
+    assert all(p.fresh for p in PIPE.status(case))  # not the defaults (a.value=1)
+    run(case, "a.value=6", until="a")  # the last run's config moved on; b, c did not re-run
+    plan = {p.stage: p for p in PIPE.status(case)}
+    assert plan["a"].fresh and plan["b"].reason == "upstream a changed"
+    again = load_config(PIPE.stages, [str(case / "config.yaml")], use_default_file=False)
+    assert again["a"].value == 6  # the recorded config is a --config file that repeats the run
+
+
+def test_status_of_a_case_run_before_configs_were_recorded(case: Path) -> None:
+    run(case, "a.value=5")
+    (case / "config.yaml").unlink()  # as an older endopipe left it: each manifest's config
+    assert all(p.fresh for p in PIPE.status(case))

@@ -1,4 +1,7 @@
-"""pycolmap imported before cv2 makes cv2.imwrite of a PNG abort; our entry points prevent it."""
+"""pycolmap imported before cv2 makes cv2.imwrite of a PNG abort; our entry points prevent it.
+
+`endopipe.stages` makes any later `import pycolmap` import cv2 first (without importing cv2
+itself, so `endopipe --help` stays fast)."""
 
 from __future__ import annotations
 
@@ -7,28 +10,36 @@ import sys
 from pathlib import Path
 
 SCRIPT = """
-import endopipe.stages  # the one place every entry point passes through: imports cv2 first
+import endopipe.stages  # the one place every entry point passes through
 import pycolmap          # noqa: F401
 import cv2, numpy as np
 ok = cv2.imwrite(r"{out}", np.full((8, 8, 3), 127, np.uint8))
 print("written" if ok else "failed")
 """
 
+CLI_THEN_COLMAP = """
+import sys
+import endopipe.cli
+assert "cv2" not in sys.modules, "the CLI module alone should not load OpenCV"
+from endopipe.stages.io import colmap_model  # a stage library that imports pycolmap lazily
+import pycolmap
+order = list(sys.modules)
+print(order.index("cv2") < order.index("pycolmap"))
+"""
+
+
+def _python(code: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+
 
 def test_png_write_survives_pycolmap_import(tmp_path: Path) -> None:
     out = tmp_path / "probe.png"
-    proc = subprocess.run(
-        [sys.executable, "-c", SCRIPT.format(out=out)], capture_output=True, text=True, timeout=120
-    )
+    proc = _python(SCRIPT.format(out=out))
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "written" in proc.stdout and out.stat().st_size > 0
 
 
-def test_cli_module_imports_cv2_before_pycolmap() -> None:
-    proc = subprocess.run(
-        [sys.executable, "-c", "import endopipe.cli, sys; print(list(sys.modules).index('cv2'))"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+def test_pycolmap_imported_through_the_cli_comes_after_cv2() -> None:
+    proc = _python(CLI_THEN_COLMAP)
     assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "True"

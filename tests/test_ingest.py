@@ -115,3 +115,138 @@ def test_view_maps_an_image_folders_own_names(tmp_path: Path) -> None:
     assert view.gt_dir is None and view.ground_truth() is None
     assert view.source_file_names() == [f"shot_{10 + 3 * n:04d}.png" for n in range(5)]
     assert view.index_by_source_stem() == {f"shot_{10 + 3 * n:04d}": n for n in range(5)}
+
+
+# ----------------------------------------------- max_frames stops decoding (issue 15, item 8)
+
+
+def ingest_summary(workdir: Path, name: str) -> dict:
+    return json.loads((workdir / name / "01_ingest" / "manifest.json").read_text())["summary"]
+
+
+def test_max_frames_stops_decoding_and_counts_what_was_not_read(tmp_path: Path, capsys) -> None:
+    from tests.conftest import textured_frames, write_video
+
+    video = write_video(tmp_path / "long.mp4", textured_frames(120, 64, 48))
+    wd = tmp_path / "wd"
+    args = ["run", str(video), "--workdir", str(wd), "--until", "ingest"]
+    assert main([*args, "--set", "ingest.max_frames=20"]) == 0
+    assert "kept 20 of 120 frames (100 not read)" in capsys.readouterr().err
+    s = ingest_summary(wd, "long")
+    counts = (s["source_frames"], s["read"], s["kept"], s["dropped"]["not_read"])
+    assert counts == (120, 20, 20, 100)
+    assert (
+        main([*args, "--quiet", "--set", "ingest.max_frames=20", "--set", "ingest.stride=2"]) == 0
+    )
+    s = ingest_summary(wd, "long")
+    counts = (s["read"], s["kept"], s["dropped"]["stride"], s["dropped"]["not_read"])
+    assert counts == (39, 20, 19, 81)
+    frames = json.loads((wd / "long" / "01_ingest" / "frames.json").read_text())["frames"]
+    assert [f["source_index"] for f in frames] == list(range(0, 40, 2))
+
+
+# ------------------------------- ground truth that does not match the input (issue 15, item 4)
+
+
+@pytest.fixture(scope="module")
+def small_case(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A synthetic case folder (8 frames, 96x80, full ground truth); tests change copies."""
+    from endopipe.commands.synth import SynthConfig, generate_case
+
+    src = tmp_path_factory.mktemp("small") / "colon"
+    generate_case(src, SynthConfig(seed=3, frames=8, width=96, height=80))
+    return src
+
+
+def copy_case(src: Path, tmp_path: Path) -> Path:
+    import shutil
+
+    return Path(shutil.copytree(src, tmp_path / "colon"))
+
+
+def test_ground_truth_that_does_not_match_is_warned_and_recorded(
+    small_case: Path, tmp_path: Path, capsys
+) -> None:
+    case = copy_case(small_case, tmp_path)
+    for n in (6, 7):
+        (case / "gt" / "depth" / f"{n:06d}.npy").unlink()
+    poses = json.loads((case / "gt" / "poses.json").read_text())
+    poses["poses"] = poses["poses"][:7]
+    (case / "gt" / "poses.json").write_text(json.dumps(poses))
+    wd = tmp_path / "wd"
+    args = ["run", str(case), "--workdir", str(wd), "--until", "ingest", "--quiet"]
+    assert main([*args, "--set", "ingest.drop_duplicates=false"]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert warnings == [
+        "warning: ground truth does not match the input: 6 depth map(s) for 8 frame(s); 2 of "
+        "the 8 kept frame(s) have none (from input frame 6) and are not evaluated",
+        "warning: ground truth does not match the input: 7 pose(s) for 8 frame(s); 1 of the 8 "
+        "kept frame(s) have none (from input frame 7) and are not evaluated",
+    ]
+    s = ingest_summary(wd, "colon")
+    assert (s["gt_frames_without_depth"], s["gt_frames_without_pose"]) == (2, 1)
+    assert s["warnings"] == [w.removeprefix("warning: ") for w in warnings]
+    from endopipe.stages.report.render import build_report
+
+    page = build_report(wd / "colon", {"ingest": wd / "colon" / "01_ingest"})
+    assert page.count("<th>Warning</th>") == 2 and "6 depth map(s) for 8 frame(s)" in page
+
+
+def test_ground_truth_for_more_frames_than_the_input_is_questioned(
+    small_case: Path, tmp_path: Path
+) -> None:
+    from endopipe.stages.io.ground_truth import GroundTruth, coverage
+
+    gt = GroundTruth(small_case / "gt")
+    assert coverage(gt, range(8), 8).warnings == []
+    found = coverage(gt, range(5), 5)  # the truth of 8 frames for a 5-frame input
+    assert found.frames_without_depth == found.frames_without_pose == 0
+    assert found.warnings == [
+        "ground truth does not match the input: 8 depth map(s) for 5 frame(s); check that the "
+        "ground truth belongs to this input",
+        "ground truth does not match the input: 8 pose(s) for 5 frame(s); check that the ground "
+        "truth belongs to this input",
+    ]
+
+
+def test_case_folder_without_intrinsics_is_read_and_colmap_estimates_the_camera(
+    small_case: Path, tmp_path: Path, capsys
+) -> None:
+    case = copy_case(small_case, tmp_path)
+    (case / "intrinsics.json").unlink()
+    wd = tmp_path / "wd"
+    assert main(["run", str(case), "--workdir", str(wd), "--until", "ingest"]) == 0
+    assert "the case has no intrinsics.json: COLMAP estimates the camera" in capsys.readouterr().err
+    frames = json.loads((wd / "colon" / "01_ingest" / "frames.json").read_text())
+    assert frames["intrinsics"] is None and frames["gt_dir"] == str((case / "gt").resolve())
+    assert json.loads((wd / "colon" / "case.json").read_text())["kind"] == "case"
+
+
+@pytest.mark.parametrize("source", ["gt", "colmap"])
+def test_lens_distortion_of_a_case_reaches_cameras_json(
+    small_case: Path, tmp_path: Path, source: str
+) -> None:
+    case = copy_case(small_case, tmp_path)
+    k = json.loads((case / "intrinsics.json").read_text())
+    k.pop("model")
+    dist = [-0.05, 0.01, 0.001, -0.002, 0.003]
+    (case / "intrinsics.json").write_text(json.dumps({**k, "dist": dist}))
+    wd = tmp_path / "wd"
+    args = ["run", str(case), "--workdir", str(wd), "--until", "poses", "--quiet"]
+    assert main([*args, "--set", f"poses.source={source}"]) == 0
+    cams = json.loads((wd / "colon" / "02_poses" / "cameras.json").read_text())
+    assert (cams["source"], cams["model"]) == (source, "FULL_OPENCV")
+    assert cams["params"][4:9] == pytest.approx(dist)  # k1 k2 p1 p2 k3 after fx fy cx cy
+
+
+def test_distortion_under_another_name_is_refused_not_dropped(
+    small_case: Path, tmp_path: Path, capsys
+) -> None:
+    case = copy_case(small_case, tmp_path)
+    k = json.loads((case / "intrinsics.json").read_text())
+    (case / "intrinsics.json").write_text(json.dumps({**k, "distortion": [-0.1, 0.01, 0, 0]}))
+    args = ["run", str(case), "--workdir", str(tmp_path / "wd"), "--until", "ingest"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert "has distortion, which endopipe does not read" in err and '"dist"' in err
+    assert "Traceback" not in err and not (tmp_path / "wd" / "colon").exists()

@@ -37,3 +37,44 @@ def test_sigkill_mid_ingest_leaves_no_partial_folder(tmp_path: Path) -> None:
     assert (case / "01_ingest" / "manifest.json").is_file()
     assert len(list((case / "01_ingest" / "frames").glob("*.png"))) == 240
     assert not list(case.glob(".01_ingest.tmp-*")), "stale temp folders are cleaned"
+
+
+def _wait_for_ingest_frames(proc: subprocess.Popen, case: Path, n: int = 5) -> None:
+    """Until ingest is writing frames into its temporary folder (mid-stage)."""
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        if len(list(case.glob(".01_ingest.tmp-*/frames/*.png"))) >= n:
+            return
+        assert proc.poll() is None, "ingest finished before the signal; make the input longer"
+        time.sleep(0.02)
+    raise AssertionError("ingest never started writing frames")
+
+
+def test_ctrl_c_mid_stage_exits_130_with_one_line_and_the_rerun_resumes(tmp_path: Path) -> None:
+    """SIGINT (Ctrl-C) is not success: exit 130 and one line naming the command to resume."""
+    video = write_video(tmp_path / "long.mp4", textured_frames(240, 320, 256))
+    wd = tmp_path / "wd"
+    args = ["run", str(video), "--workdir", str(wd), "--until", "ingest", "--quiet"]
+    args += ["--set", "ingest.drop_duplicates=false"]
+    cmd = [sys.executable, "-m", "endopipe", *args]
+    # a shell's background job (`pytest &`) ignores SIGINT and its children inherit that, so
+    # Python would install no Ctrl-C handler: give the run the default disposition a terminal has
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    _wait_for_ingest_frames(proc, wd / "long")
+    os.kill(proc.pid, signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr[-2000:]
+    lines = [ln for ln in (stdout + stderr).splitlines() if ln.strip()]
+    assert len(lines) == 1, lines
+    assert "interrupted" in lines[0] and "Traceback" not in stderr
+    assert f"run the same command again: endopipe {' '.join(args)}" in lines[0]
+    assert not (wd / "long" / "01_ingest").exists()
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert len(list((wd / "long" / "01_ingest" / "frames").glob("*.png"))) == 240

@@ -280,3 +280,187 @@ def test_report_renders_in_headless_chromium(tiny_case: Path, tmp_path: Path) ->
     assert (body.max(-1) < 90).mean() > 0.002, "no text rendered"
     # the summary cards' figures and the contact sheet were drawn (not just an empty page)
     assert len(np.unique(body.reshape(-1, 3) // 16, axis=0)) > 50
+
+
+# --- what a user meets (issue 15) ---------------------------------------------------------------
+
+
+def section_html(page: str, key: str) -> str:
+    """One section of the page, as HTML."""
+    return re.search(rf'<section id="{key}">(.*?)</section>', page, re.S).group(1)
+
+
+def visible_text(fragment: str) -> str:
+    """What a reader sees of an HTML fragment: tags, JSON dumps and iframes dropped."""
+    fragment = re.sub(r"<(pre|iframe)\b.*?</\1>", " ", fragment, flags=re.S)
+    return html.unescape(re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", fragment))).strip()
+
+
+def test_fresh_report_shows_the_run_that_wrote_it(tiny_case: Path) -> None:
+    """The report stage runs before its run ends: its page lists that run, in progress, with
+    the stages done so far (it used to say "no run records")."""
+    page = (PIPELINE.folder(tiny_case, "report") / "report.html").read_text()
+    runs = visible_text(section_html(page, "runs"))
+    assert "no run records" not in runs
+    assert "this run, in progress" in runs
+    assert "6 stage(s) done so far" in runs
+    assert "ingest, poses, centerline, nerf, depth, mesh" in runs
+    record = json.loads(sorted((tiny_case / "runs").glob("*.json"))[-1].read_text())
+    assert record["ok"] and record["finished"] and len(record["stages"]) == 7  # then completed
+
+
+def test_a_run_that_died_is_not_shown_as_running(case_copy: Path) -> None:
+    """A record without an end whose process is gone: killed, not "in progress"."""
+    proc = subprocess.Popen(["true"])  # a pid that has surely exited
+    proc.wait()
+    write_json(
+        case_copy / "runs" / "20990101T000000_000000.json",
+        {"case": "colon", "input": "x", "started": "2099-01-01T00:00:00", "pid": proc.pid},
+    )
+    page = build_report(case_copy, folders_of(case_copy), FAST)
+    runs = visible_text(section_html(page, "runs"))
+    assert "no end recorded (killed?)" in runs
+    assert "no stage done yet" in runs
+
+
+def test_loss_legend_sits_beside_the_curves(tiny_case: Path) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from endopipe.stages.nerf.stage import loss_figure
+
+    rows = PIPELINE.view(tiny_case, "nerf").train_log()
+    fig = loss_figure(rows)
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    ax = fig.axes[0]
+    legend = ax.get_legend().get_window_extent(renderer)
+    assert len(ax.get_legend().get_texts()) >= 5
+    assert not legend.overlaps(ax.get_window_extent(renderer)), "legend over the curves"
+    assert legend.x1 <= fig.bbox.x1  # and still on the figure
+
+
+def test_heldout_grid_has_column_titles_and_colour_bars() -> None:
+    from endopipe.stages.nerf.stage import heldout_figure
+
+    img = np.full((32, 40, 3), 0.5, np.float32)
+    depth = np.linspace(10, 40, 32 * 40, dtype=np.float32).reshape(32, 40)
+    items = [
+        (img, {"rgb": img, "depth": depth}, depth * 1.1),
+        (img, {"rgb": img, "depth": depth}, None),
+    ]
+    fig = heldout_figure(items, "mm")
+    titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+    assert titles == [
+        "held-out image",
+        "NeRF rendering",
+        "rendered depth (mm)",
+        "ground-truth depth (mm)",
+    ]
+    colour_bars = [ax for ax in fig.axes if ax.get_label() == "<colorbar>"]
+    assert len(colour_bars) == 3  # two depth panels, then one (the second frame has no truth)
+    assert any(t.get_text() == "no ground truth" for ax in fig.axes for t in ax.texts)
+
+
+def _lut(name: str) -> np.ndarray:
+    cmap = {"turbo": cv2.COLORMAP_TURBO, "inferno": cv2.COLORMAP_INFERNO}[name]
+    return cv2.applyColorMap(np.arange(256, dtype=np.uint8)[:, None], cmap)[:, 0, ::-1]
+
+
+def _lut_distance(pixels: np.ndarray, lut: np.ndarray) -> float:
+    """Median distance of RGB pixels to the nearest colour of a colour map."""
+    d = np.linalg.norm(pixels[:, None, :].astype(float) - lut[None].astype(float), axis=-1)
+    return float(np.median(d.min(1)))
+
+
+def check_preview_frame(frame: np.ndarray, h: int, w: int) -> None:
+    """A preview.mp4 frame (h x w maps): three panels, each titled; depth in turbo and the
+    error in inferno, as in the report; a colour bar in the same map under each."""
+    assert frame.shape[0] >= h + 28 and frame.shape[1] in (3 * w, 3 * w + 1), frame.shape
+    for col in range(3):  # a title above every panel
+        assert (frame[:14, col * w : (col + 1) * w].max(-1) > 180).sum() > 20, col
+    mid = frame.shape[0] // 2
+    error = frame[mid - 20 : mid + 20, 2 * w + 4 : 3 * w - 4].reshape(-1, 3)
+    error = error[error.max(-1) > 40]  # evaluated pixels (black: none)
+    assert _lut_distance(error, _lut("inferno")) < 12 < _lut_distance(error, _lut("turbo"))
+    for col, cmap in ((1, "turbo"), (2, "inferno")):  # a colour bar under depth and error
+        bottom = frame[h + 14 :, col * w + 8 : (col + 1) * w - 8].reshape(-1, 3).astype(int)
+        bar = bottom[bottom.max(-1) - bottom.min(-1) > 60]  # coloured: not text, not background
+        other = "inferno" if cmap == "turbo" else "turbo"
+        assert len(bar) > w // 2, cmap
+        near, far = _lut_distance(bar, _lut(cmap)), _lut_distance(bar, _lut(other))
+        assert near < 30 and 2 * near < far, (cmap, near, far)  # H.264 blurs a thin bar
+
+
+def test_preview_video_panels_are_titled_with_colour_bars_in_the_report_maps(
+    tiny_case: Path,
+) -> None:
+    import av
+
+    depth = PIPELINE.view(tiny_case, "depth")
+    h, w = depth.depth(depth.indices[0]).shape
+    with av.open(str(depth.preview_path)) as video:
+        check_preview_frame(next(video.decode(video=0)).to_ndarray(format="rgb24"), h, w)
+
+
+def test_mesh_section_is_one_readable_table(tiny_case: Path) -> None:
+    page = build_report(tiny_case, folders_of(tiny_case), FAST)
+    mesh = section_html(page, "mesh")
+    shown = visible_text(mesh)
+    metrics = read(tiny_case, "mesh", "metrics.json")
+    for raw_key in (
+        "gt_area_seen",
+        "eval_s",
+        "components_removed",
+        "chamfer_pct_radius",
+        "[chamfer]",
+        "build s",
+    ):
+        assert raw_key not in shown, raw_key
+    assert mesh.count('class="grid metrics grouped"') == 1
+    assert shown.count("Chamfer distance") == 1
+    assert f"Clean-up {metrics['components_removed']:,} small components removed" in shown
+    vertices = len(trimesh.load(folders_of(tiny_case)["mesh"] / "mesh.ply").vertices)
+    assert metrics["vertices"] == vertices
+    assert f"Vertices {vertices:,} in mesh.ply, after clean-up" in shown
+    assert f"before clean-up {metrics['raw_vertices']:,} vertices" in shown
+    assert f"Truth surface compared {fmt(metrics['gt_area_seen'])[:4]}" in shown
+    assert "mm²" in shown and "Evaluation time" in shown
+
+
+def test_mesh_log_and_report_give_the_same_vertex_count(tiny_case: Path, tmp_path: Path) -> None:
+    """The log used to print the count before clean-up, the report the one after."""
+    from endopipe.stages.mesh.stage import Mesh, MeshConfig
+
+    out = tmp_path / ".06_mesh.tmp"
+    out.mkdir()
+    console = Console(record=True, width=200)
+    ctx = StageContext(
+        case_dir=tiny_case,
+        out=out,
+        config=MeshConfig(evaluate=False),
+        case=CaseInfo.load(tiny_case),
+        inputs={n: folders_of(tiny_case)[n] for n in Mesh.needs},
+        resolve_view=lambda name, folder: PIPELINE.by_name[name].view(folder),
+        console=console,
+        quiet=False,
+    )
+    Mesh().run(ctx)
+    log = console.export_text()
+    vertices = len(trimesh.load(out / "mesh.ply").vertices)
+    assert f"mesh.ply: {vertices:,} vertices" in log, log
+    assert "before clean-up" in log
+    raw = json.loads((out / "metrics.json").read_text())["raw_vertices"]
+    assert f"{raw:,} vertices" in log and raw >= vertices
+
+
+def test_render_times_say_what_they_time(tiny_case: Path) -> None:
+    page = visible_text(build_report(tiny_case, folders_of(tiny_case), FAST))
+    nerf = read(tiny_case, "nerf", "metrics.json")
+    depth = Manifest.load(folders_of(tiny_case)["depth"]).summary
+    assert "Render time per frame" not in page
+    expected = (
+        f"Field render time, depth only {visible_text(fmt(nerf['render_ms'], 'ms'))} per held-out",
+        f"Field render time, colour and depth {visible_text(fmt(nerf['render_rgb_ms'], 'ms'))}",
+        f"Depth stage render time {visible_text(fmt(depth['ms_per_frame'], 'ms'))} per frame",
+    )
+    for text_ in expected:
+        assert text_ in page, text_

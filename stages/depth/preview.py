@@ -1,7 +1,8 @@
-"""How depth is shown: the colour map, the scaled relative-error map, and preview.mp4.
+"""How depth is shown: the colour maps, the scaled relative-error map, and preview.mp4.
 
-The report draws its depth figures with the same error (`scaled_error`), so the numbers in the
-preview video and in the report's figures are computed once.
+One colour map per quantity everywhere: depth in turbo (near = blue), the abs-rel error in
+inferno from 0 to ERROR_MAX, black where there is no value. The report draws its figures with
+these maps and the same error (`scaled_error`), so the preview video and the report agree.
 """
 
 from __future__ import annotations
@@ -15,18 +16,27 @@ import numpy as np
 from endopipe.stages.io.video_writer import write_mp4
 from endopipe.stages.metrics.depth import affine_fit
 
+#: Colour maps (matplotlib names; OpenCV has the same maps) and the error at the top of the scale.
+DEPTH_CMAP = "turbo"
+ERROR_CMAP = "inferno"
+ERROR_MAX = 0.25
+_CV2_MAPS = {"turbo": cv2.COLORMAP_TURBO, "inferno": cv2.COLORMAP_INFERNO}
+
 
 class FrameImages(Protocol):
     def image(self, i: int) -> np.ndarray: ...
 
 
-def colourise(depth: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """Depth as a turbo colour map (RGB uint8), invalid pixels black."""
-    x = np.clip((depth - lo) / max(hi - lo, 1e-9), 0, 1)
-    rgb = cv2.cvtColor(
-        cv2.applyColorMap((x * 255).astype(np.uint8), cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB
-    )
-    rgb[depth <= 0] = 0
+def apply_cmap(x: np.ndarray, cmap: str) -> np.ndarray:
+    """Values in [0, 1] through a colour map, as RGB uint8."""
+    u8 = (np.clip(x, 0, 1) * 255).astype(np.uint8)
+    return cv2.cvtColor(cv2.applyColorMap(u8, _CV2_MAPS[cmap]), cv2.COLOR_BGR2RGB)
+
+
+def colourise(depth: np.ndarray, lo: float, hi: float, cmap: str = DEPTH_CMAP) -> np.ndarray:
+    """Depth (or any value) from lo to hi through `cmap` (RGB uint8), invalid pixels black."""
+    rgb = apply_cmap((depth - lo) / max(hi - lo, 1e-9), cmap)
+    rgb[~(depth > 0)] = 0
     return rgb
 
 
@@ -48,15 +58,38 @@ def scaled_error(
 
 def error_map(depth: np.ndarray, gt: np.ndarray, affine: bool = False) -> np.ndarray:
     """Per-pixel relative error after median scaling (or, for a relative ground truth, after
-    the least-squares scale and shift), 0..0.3 mapped to the colour map."""
+    the least-squares scale and shift), 0..ERROR_MAX in ERROR_CMAP, black where not evaluated."""
     valid = (gt > 0) & (depth > 0)
-    err = np.zeros_like(depth)
+    out = np.zeros((*depth.shape[:2], 3), np.uint8)
     if valid.sum() > 1:
         rel, _, _ = scaled_error(depth.astype(np.float64), gt.astype(np.float64), valid, affine)
-        err = np.where(valid, rel, 0).astype(err.dtype)
-    out = colourise(err, 0.0, 0.3)
-    out[~valid] = 0
+        out = apply_cmap(np.where(valid, rel, 0) / ERROR_MAX, ERROR_CMAP)
+        out[~valid] = 0
     return out
+
+
+def label_panel(panel: np.ndarray, title: str, bar: tuple[str, str, str] | None) -> np.ndarray:
+    """The panel with its column title above and, for a colour-mapped panel, a colour bar
+    below: bar = (colour map, label at the low end, label at the high end)."""
+    h, w = panel.shape[:2]
+    scale = max(0.3, w / 480)
+    band = max(14, round(34 * scale))
+    top = np.full((band, w, 3), 24, np.uint8)
+    _put(top, title, (4, band - round(band * 0.3)), scale)
+    bar_h = max(6, band // 4 * 2)  # even, from an even row: whole in 4:2:0 chroma
+    bottom = np.full((band + bar_h + 2, w, 3), 24, np.uint8)
+    if bar is not None:
+        cmap, lo, hi = bar
+        bottom[2 : 2 + bar_h, 4 : w - 4] = apply_cmap(np.linspace(0, 1, w - 8)[None], cmap)
+        y = len(bottom) - round(band * 0.3)
+        _put(bottom, lo, (4, y), scale)
+        tw = cv2.getTextSize(hi, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0]
+        _put(bottom, hi, (max(4, w - 4 - tw), y), scale)
+    return np.concatenate([top, panel, bottom], axis=0)
+
+
+def _put(img: np.ndarray, text: str, org: tuple[int, int], scale: float) -> None:
+    cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (235, 235, 235), 1, cv2.LINE_AA)
 
 
 def write_preview(
@@ -66,15 +99,28 @@ def write_preview(
     gt_depths: dict[int, np.ndarray],
     fps: int,
     affine: bool = False,
+    units: str = "",
 ) -> None:
-    """RGB | depth | error (when GT exists), one frame per registered frame."""
+    """RGB | depth | error (when GT exists), one frame per registered frame; each panel with
+    its title and, for depth and error, a colour bar with its range."""
     all_d = np.concatenate([d[d > 0] for d in depths.values()]) if depths else np.ones(1)
     lo, hi = np.percentile(all_d, [2, 98]) if all_d.size else (0.0, 1.0)
+    unit = f" {units}" if units else ""
+    fit = "scale+shift fitted" if affine else "median-scaled"
+    bar = (ERROR_CMAP, "0", f"{ERROR_MAX:g}+")
     frames = []
     for i, d in depths.items():
-        panels = [ingest.image(i), colourise(d, lo, hi)]
+        depth_bar = (DEPTH_CMAP, f"{lo:.3g}", f"{hi:.3g}{unit}")
+        panels = [
+            label_panel(ingest.image(i), f"frame {i}", None),
+            label_panel(colourise(d, lo, hi), f"depth ({units or 'scene units'})", depth_bar),
+        ]
         if i in gt_depths:
-            panels.append(error_map(d, gt_depths[i], affine))
+            error = error_map(d, gt_depths[i], affine)
+            panels.append(label_panel(error, f"abs-rel error, {fit}", bar))
+        elif gt_depths:  # keep the frame's width: an empty panel where this frame has no truth
+            blank = np.zeros((*d.shape[:2], 3), np.uint8)
+            panels.append(label_panel(blank, "no ground truth", None))
         frames.append(np.concatenate(panels, axis=1))
     if frames:
         write_mp4(path, frames, fps)

@@ -99,7 +99,13 @@ class Depth(Stage):
         if cfg.preview:
             affine = metrics.get("gt_kind") == "relative"
             write_preview(
-                ctx.out / PREVIEW_FILE, ingest, depths, gt_depths, cfg.preview_fps, affine
+                ctx.out / PREVIEW_FILE,
+                ingest,
+                depths,
+                gt_depths,
+                cfg.preview_fps,
+                affine,
+                units=poses.file.units,
             )
         ms = 1000 * float(np.median(times[1:] if len(times) > 1 else times))
         ctx.log(

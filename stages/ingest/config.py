@@ -2,16 +2,132 @@
 
 from __future__ import annotations
 
-from pydantic import Field
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
 
 from endopipe.pipeline.stage import StageConfig
-from endopipe.stages.ingest.masks import FovConfig, SpecularConfig
+
+# The mask settings live here, not in masks.py, so reading the config needs no OpenCV.
+FovShape = Literal["circle", "octagon", "rectangle", "full"]
+
+
+class FovConfig(BaseModel):
+    """How the endoscope's field of view is found."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    enabled: bool = Field(True, description="Find the field of view; when off the mask is all 255.")
+    black_threshold: int = Field(
+        25,
+        ge=0,
+        le=255,
+        description="Brightness (max of R, G, B) under which a pixel connected to the image edge "
+        "is scope border.",
+    )
+    erode_px: int = Field(
+        3, ge=0, description="Shrink the found region by this many pixels (dark vignetting rim)."
+    )
+    open_frac: float = Field(
+        0.02,
+        ge=0.0,
+        le=0.2,
+        description="Opening kernel, as a fraction of the short image side: removes burned-in "
+        "text, thin lines and other small bright bits lying in the border.",
+    )
+    full_frac: float = Field(
+        0.99,
+        gt=0.0,
+        le=1.0,
+        description="If the bright region's hull covers at least this fraction of the image, "
+        "there is no border: shape 'full'.",
+    )
+    rectangle_fill: float = Field(
+        0.97,
+        gt=0.0,
+        le=1.0,
+        description="If the hull fills at least this fraction of its bounding box, shape "
+        "'rectangle' (black bars only).",
+    )
+    circle_tol: float = Field(
+        0.012,
+        gt=0.0,
+        description="Largest RMS distance of the hull outline from a fitted circle, relative to "
+        "its radius, for shape 'circle'; otherwise the hull polygon is kept ('octagon').",
+    )
+    cut_overlays: bool = Field(
+        True,
+        description="Also exclude solid patches that the fitted shape spans but that are not "
+        "tissue: border-black boxes burned into a corner, coloured boxes framed in black. "
+        "Static overlays mislead pose estimation. Off gives the pure convex shape.",
+    )
+    sample_frames: int = Field(
+        15, ge=1, description="Frames sampled evenly from a sequence to estimate its one mask."
+    )
+    sequence_percentile: float = Field(
+        90.0,
+        ge=0.0,
+        le=100.0,
+        description="Per-pixel percentile of brightness over the sampled frames: high, so a dark "
+        "lumen in some frames is seen bright in others, yet below 100 to ignore odd flashes.",
+    )
+
+
+class SpecularConfig(BaseModel):
+    """How specular highlights are found (bright, white, small blobs)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    enabled: bool = Field(True, description="Find highlights; when off nothing is flagged.")
+    min_value: int = Field(
+        245,
+        ge=0,
+        le=255,
+        description="Absolute test: HSV value (0..255) at or above which a white pixel is a "
+        "highlight (saturated highlights clip near 255).",
+    )
+    max_saturation: int = Field(
+        12,
+        ge=0,
+        le=255,
+        description="Absolute test: HSV saturation (0..255) at or under which a bright pixel is "
+        "white. Low, so pale pink tissue (V ~245, S ~20-40) is not taken for a highlight.",
+    )
+    rel_ratio: float = Field(
+        1.25,
+        gt=1.0,
+        description="Relative test: whiteness (min of R, G, B) at least this many times the "
+        "local background's marks an unsaturated highlight on darker tissue.",
+    )
+    rel_min_white: int = Field(
+        170,
+        ge=0,
+        le=255,
+        description="Relative test: whiteness (min of R, G, B) a pixel needs at least. Red "
+        "tissue has a low blue channel however bright it is, so this also rejects colour.",
+    )
+    background_frac: float = Field(
+        0.08,
+        gt=0.0,
+        le=0.5,
+        description="Size of the median filter that estimates the local background, as a "
+        "fraction of the short image side.",
+    )
+    min_blob_px: int = Field(
+        3, ge=0, description="Candidate blobs smaller than this (pixels) are noise, not kept."
+    )
+    dilate_px: int = Field(
+        2, ge=0, description="Grow kept highlights by this many pixels to cover their halo."
+    )
 
 
 class IngestConfig(StageConfig):
     stride: int = Field(1, ge=1, description="Keep every n-th frame of the input.")
     max_frames: int | None = Field(
-        None, ge=1, description="Keep at most this many frames (after stride and filtering)."
+        None,
+        ge=1,
+        description="Keep at most this many frames (after stride and filtering); decoding "
+        "stops once they are kept.",
     )
     start_s: float = Field(0.0, ge=0, description="Skip video before this time (seconds).")
     end_s: float | None = Field(None, gt=0, description="Stop reading the video at this time.")

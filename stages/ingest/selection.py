@@ -1,7 +1,13 @@
 """Which input frames ingest keeps: time window, stride, and blank / duplicate / blurred
-frames dropped, each reason counted for the summary."""
+frames dropped, each reason counted for the summary.
+
+With `max_frames`, decoding stops as soon as enough frames are kept: a 60-frame run on a
+250-frame video reads what it needs, and the rest is counted as "not_read".
+"""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -12,53 +18,110 @@ from endopipe.stages.ingest.config import IngestConfig
 from endopipe.stages.ingest.frame_quality import frame_difference, sharpness
 from endopipe.stages.io.sources import Frame, InputSource
 
+REASONS = ("outside_time_window", "stride", "blank", "duplicate", "blurred", "max_frames")
 
-def select_frames(
-    source: InputSource, cfg: IngestConfig, ctx: StageContext
-) -> tuple[list[Frame], dict[str, int], int]:
+
+@dataclass
+class Selection:
+    """The kept frames and where every other frame of the input went."""
+
+    frames: list[Frame]
+    dropped: dict[str, int]  # reason -> frames; "not_read" when decoding stopped early
+    read: int  # frames decoded
+    total: int | None  # frames in the input (None: unknown, decoding stopped early)
+
+
+def select_frames(source: InputSource, cfg: IngestConfig, ctx: StageContext) -> Selection:
     """Stride, time window, blank / duplicate / blur filtering; reasons are counted."""
-    dropped = {"outside_time_window": 0, "stride": 0, "blank": 0, "duplicate": 0, "blurred": 0}
+    dropped = dict.fromkeys(REASONS, 0)
     candidates: list[Frame] = []
-    total = 0
+    scores: list[float] = []  # sharpness of each candidate (blur is judged against the median)
+    read, finished = 0, True
     last_grey: np.ndarray | None = None
-    with ctx.progress("decode", total=source.frame_count()) as advance:
+    declared = source.frame_count()
+    with ctx.progress("decode", total=declared) as advance:
         for frame in source.frames():
-            total += 1
+            read += 1
             advance()
-            t = frame.time_s
-            if t is not None and (t < cfg.start_s or (cfg.end_s is not None and t > cfg.end_s)):
-                dropped["outside_time_window"] += 1
+            reason = _drop_reason(frame, read - 1, cfg, last_grey)
+            if reason is not None:
+                dropped[reason] += 1
                 continue
-            if (total - 1) % cfg.stride:
-                dropped["stride"] += 1
-                continue
-            grey = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
-            if np.percentile(grey, 99) < cfg.black_level:
-                dropped["blank"] += 1
-                continue
-            if cfg.drop_duplicates and last_grey is not None:
-                if frame_difference(grey, last_grey) < cfg.duplicate_threshold:
-                    dropped["duplicate"] += 1
-                    continue
-            last_grey = grey
+            last_grey = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
             candidates.append(frame)
-    if total == 0:
+            scores.append(sharpness(frame.rgb) if cfg.drop_blurred else 0.0)
+            if _enough(scores, cfg):
+                finished = False
+                break
+    if read == 0:
         raise InputError(f"{source.path} holds no decodable frames; check the file")
     if not candidates:
         raise InputError(
-            f"all {total} frames of {source.path} are blank (black) or outside the time window; "
+            f"all {read} frames of {source.path} are blank (black) or outside the time window; "
             "check the video and --set ingest.start_s/end_s"
         )
-    if cfg.drop_blurred and len(candidates) >= 3:
-        scores = np.array([sharpness(f.rgb) for f in candidates])
-        keep = scores >= cfg.blur_rel_threshold * np.median(scores)
-        dropped["blurred"] = int((~keep).sum())
-        candidates = [f for f, k in zip(candidates, keep, strict=True) if k]
-    if cfg.max_frames is not None:
+    keep = _sharp_enough(scores, cfg)
+    dropped["blurred"] = int((~keep).sum())
+    candidates = [f for f, k in zip(candidates, keep, strict=True) if k]
+    if cfg.max_frames is not None and len(candidates) > cfg.max_frames:
+        dropped["max_frames"] = len(candidates) - cfg.max_frames
         candidates = candidates[: cfg.max_frames]
+    total = read if finished else declared
+    if total is not None:
+        dropped["not_read"] = max(0, total - read)
     if len(candidates) < cfg.min_frames:
         raise InputError(
-            f"only {len(candidates)} usable frame(s) in {source.path} (of {total}); endopipe needs "
-            f"at least {cfg.min_frames}: give a longer video or lower --set ingest.stride"
+            f"only {len(candidates)} usable frame(s) in {source.path} (of {read}); endopipe needs "
+            f"at least {cfg.min_frames}: {_more_frames_hint(cfg, dropped)}"
         )
-    return candidates, dropped, total
+    return Selection(candidates, dropped, read, total)
+
+
+def _drop_reason(
+    frame: Frame, position: int, cfg: IngestConfig, last_grey: np.ndarray | None
+) -> str | None:
+    """Why frame number `position` of the input is not a candidate, or None."""
+    t = frame.time_s
+    if t is not None and (t < cfg.start_s or (cfg.end_s is not None and t > cfg.end_s)):
+        return "outside_time_window"
+    if position % cfg.stride:
+        return "stride"
+    grey = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
+    if np.percentile(grey, 99) < cfg.black_level:
+        return "blank"
+    if cfg.drop_duplicates and last_grey is not None:
+        if frame_difference(grey, last_grey) < cfg.duplicate_threshold:
+            return "duplicate"
+    return None
+
+
+def _sharp_enough(scores: list[float], cfg: IngestConfig) -> np.ndarray:
+    """Which candidates pass the blur test (relative to their median sharpness)."""
+    values = np.asarray(scores, dtype=np.float64)
+    if not cfg.drop_blurred or len(values) < 3:
+        return np.ones(len(values), dtype=bool)
+    return values >= cfg.blur_rel_threshold * np.median(values)
+
+
+def _enough(scores: list[float], cfg: IngestConfig) -> bool:
+    """Whether the candidates so far already give `max_frames` kept frames: decoding stops."""
+    if cfg.max_frames is None or len(scores) < cfg.max_frames:
+        return False
+    return int(_sharp_enough(scores, cfg).sum()) >= cfg.max_frames
+
+
+def _more_frames_hint(cfg: IngestConfig, dropped: dict[str, int]) -> str:
+    """What would give more frames: only the settings that dropped some (never "lower the
+    stride" when it is already 1)."""
+    hints = ["give more frames (a longer video, more images)"]
+    if cfg.stride > 1:
+        hints.append(f"lower --set ingest.stride (now {cfg.stride})")
+    if dropped.get("outside_time_window"):
+        hints.append("widen --set ingest.start_s/end_s")
+    if dropped.get("duplicate"):
+        hints.append("--set ingest.drop_duplicates=false")
+    if dropped.get("blurred"):
+        hints.append("--set ingest.drop_blurred=false")
+    if dropped.get("max_frames"):
+        hints.append(f"raise --set ingest.max_frames (now {cfg.max_frames})")
+    return ", or ".join(hints)

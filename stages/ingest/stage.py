@@ -6,13 +6,14 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from rich.markup import escape
 
 from endopipe.pipeline.errors import InputError
 from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
 from endopipe.stages.camera import Camera
 from endopipe.stages.ingest.config import IngestConfig
 from endopipe.stages.ingest.masks import combine, fov_mask_for_sequence, specular_mask
-from endopipe.stages.ingest.selection import select_frames
+from endopipe.stages.ingest.selection import Selection, select_frames
 from endopipe.stages.ingest.view import (
     FOV_FILE,
     FRAMES_FILE,
@@ -21,14 +22,16 @@ from endopipe.stages.ingest.view import (
     IngestView,
     SourceInfo,
 )
-from endopipe.stages.io.sources import InputSource, open_input
+from endopipe.stages.io.ground_truth import Coverage, coverage
+from endopipe.stages.io.sources import Frame, InputSource, open_input
 
 __all__ = ["FrameEntry", "Ingest", "IngestConfig", "IngestSummary", "IngestView"]
 
 
 class IngestSummary(Summary):
     kind: str
-    source_frames: int
+    source_frames: int | None  # None: unknown (decoding stopped early on a video of no length)
+    read: int  # frames decoded (fewer than source_frames when max_frames stopped decoding)
     kept: int
     dropped: dict[str, int]
     width: int
@@ -38,6 +41,9 @@ class IngestSummary(Summary):
     mean_specular_fraction: float
     has_intrinsics: bool
     has_ground_truth: bool
+    gt_frames_without_depth: int = 0  # kept frames the ground truth has no depth for
+    gt_frames_without_pose: int = 0  # kept frames the ground truth has no pose for
+    warnings: list[str] = []  # one line each: what the user should know (shown in the report)
 
 
 class Ingest(Stage):
@@ -45,7 +51,7 @@ class Ingest(Stage):
 
     name = "ingest"
     needs = ()
-    version = 1
+    version = 2  # 2: max_frames stops decoding; read, not_read and ground-truth coverage
     Config = IngestConfig
 
     @classmethod
@@ -59,7 +65,8 @@ class Ingest(Stage):
             Path(ctx.case.intrinsics_file) if ctx.case.intrinsics_file else None,
             format=ctx.case.kind,
         )
-        frames, dropped, total = select_frames(source, cfg, ctx)
+        selection = select_frames(source, cfg, ctx)
+        frames, dropped = selection.frames, selection.dropped
         size = working_size(frames[0].rgb.shape[1], frames[0].rgb.shape[0], cfg.max_size)
         images = [resize(f.rgb, size) for f in frames]
         fov, fov_shape = fov_mask_for_sequence(images[:: max(1, len(images) // 12)], cfg.fov)
@@ -99,14 +106,14 @@ class Ingest(Stage):
         write_contact_sheet(
             ctx.out / "contact_sheet.png", images, fov, ctx.out, cfg.contact_sheet_frames
         )
-        ctx.log(
-            f"kept {len(frames)} of {total} frames "
-            + ", ".join(f"{v} {k}" for k, v in dropped.items() if v)
-            + f"; field of view: {fov_shape}"
-        )
+        ctx.log(f"{kept_line(len(frames), selection)}; field of view: {fov_shape}")
+        if source.kind == "case" and source.intrinsics is None:
+            ctx.log("the case has no intrinsics.json: COLMAP estimates the camera")
+        gt = ground_truth_coverage(ctx, source, frames, selection.total)
         return IngestSummary(
             kind=source.kind,
-            source_frames=total,
+            source_frames=selection.total,
+            read=selection.read,
             kept=len(frames),
             dropped=dropped,
             width=size[0],
@@ -116,7 +123,41 @@ class Ingest(Stage):
             mean_specular_fraction=float(np.mean(spec_fracs)),
             has_intrinsics=intrinsics is not None,
             has_ground_truth=source.gt_dir is not None,
+            gt_frames_without_depth=gt.frames_without_depth,
+            gt_frames_without_pose=gt.frames_without_pose,
+            warnings=gt.warnings,
         )
+
+
+def ground_truth_coverage(
+    ctx: StageContext, source: InputSource, frames: list[Frame], input_frames: int | None
+) -> Coverage:
+    """Warn (one line each) where the truth leaves kept frames unevaluated or does not match."""
+    try:
+        truth = source.ground_truth()
+    except InputError as e:  # a gt/ with nothing readable: evaluation will say so too
+        found = Coverage(warnings=[str(e)])
+    else:
+        found = coverage(truth, [f.source_index for f in frames], input_frames)
+    for line in found.warnings:
+        warn(ctx, line)
+    return found
+
+
+def kept_line(kept: int, selection: Selection) -> str:
+    """'kept 60 of 250 frames (190 not read, 2 blank)': where every input frame went."""
+    total = selection.total if selection.total is not None else f"{selection.read}+"
+    reasons = ", ".join(
+        f"{n} {reason.replace('_', ' ')}" for reason, n in selection.dropped.items() if n
+    )
+    return f"kept {kept} of {total} frames" + (f" ({reasons})" if reasons else "")
+
+
+def warn(ctx: StageContext, message: str) -> None:
+    """A warning is printed even with --quiet (which only hides progress)."""
+    ctx.console.print(
+        f"[yellow]warning:[/yellow] {escape(message)}", highlight=False, soft_wrap=True
+    )
 
 
 def working_size(width: int, height: int, max_size: int) -> tuple[int, int]:

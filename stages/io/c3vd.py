@@ -139,6 +139,12 @@ class C3VDGroundTruth:
             raw = raw[..., 0]
         return decode_depth(raw)
 
+    def has_depth(self, source_index: int) -> bool:
+        return numbered_file(self.numbers, self._depth, source_index) is not None
+
+    def depth_count(self) -> int:
+        return len(self._depth)
+
     def has_poses(self) -> bool:
         return (self.dir / "pose.txt").is_file()
 

@@ -83,6 +83,12 @@ class C3VDPreviewGroundTruth:
             raw = raw[:, : self._width]
         return raw.astype(np.float32)  # grey 0 (nearest or no render) counts as invalid
 
+    def has_depth(self, source_index: int) -> bool:
+        return numbered_file(self.numbers, self._depth, source_index) is not None
+
+    def depth_count(self) -> int:
+        return len(self._depth)
+
     def has_poses(self) -> bool:
         return False
 

@@ -14,7 +14,8 @@ it as `gt_kind`.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, Protocol, runtime_checkable
 
@@ -36,6 +37,14 @@ class GroundTruthSource(Protocol):
 
     def depth(self, source_index: int) -> np.ndarray | None:
         """float32 z-depth (mm, 0 = invalid) of input frame `source_index`, or None."""
+        ...
+
+    def has_depth(self, source_index: int) -> bool:
+        """Whether input frame `source_index` has a depth map (without reading it)."""
+        ...
+
+    def depth_count(self) -> int:
+        """How many depth maps the truth holds (to compare with the input's frame count)."""
         ...
 
     def has_poses(self) -> bool: ...
@@ -88,6 +97,68 @@ def depth_of_frame(gt: GroundTruthSource | None, frame: FrameRef) -> np.ndarray 
     return None if gt is None else gt.depth(frame.source_index)
 
 
+@dataclass(frozen=True)
+class Coverage:
+    """How the truth covers the kept frames: a frame without truth is silently left out of
+    evaluation, so ingest shows each mismatch in one line and records it."""
+
+    frames_without_depth: int = 0
+    frames_without_pose: int = 0
+    warnings: list[str] = field(default_factory=list)
+
+
+def coverage(
+    gt: GroundTruthSource | None, source_indices: Sequence[int], input_frames: int | None
+) -> Coverage:
+    """Compare the truth with the input (`input_frames` frames, None when unknown) and the kept
+    frames (`source_indices`)."""
+    if gt is None:
+        return Coverage()
+    count = gt.depth_count()
+    no_depth = [i for i in source_indices if not gt.has_depth(i)] if count else []
+    n_poses = _pose_count(gt)
+    no_pose = [i for i in source_indices if i >= n_poses] if n_poses else []
+    warnings = [
+        w
+        for w in (
+            _mismatch(count, "depth map", no_depth, len(source_indices), input_frames),
+            _mismatch(n_poses, "pose", no_pose, len(source_indices), input_frames),
+        )
+        if w
+    ]
+    return Coverage(len(no_depth), len(no_pose), warnings)
+
+
+def _pose_count(gt: GroundTruthSource) -> int:
+    """How many poses the truth holds; 0 when it has none or they are unreadable (the poses
+    stage reports unreadable poses when it needs them)."""
+    if not gt.has_poses():
+        return 0
+    try:
+        return len(gt.poses())
+    except (InputError, ValueError, KeyError, TypeError, OSError):
+        return 0
+
+
+def _mismatch(
+    count: int, what: str, missing: list[int], kept: int, input_frames: int | None
+) -> str | None:
+    """One line when `count` items of truth do not match the input's frames, else None."""
+    if not count:
+        return None
+    head = f"ground truth does not match the input: {count} {what}(s)"
+    if input_frames:
+        head += f" for {input_frames} frame(s)"
+    if missing:
+        return (
+            f"{head}; {len(missing)} of the {kept} kept frame(s) have none (from input frame "
+            f"{missing[0]}) and are not evaluated"
+        )
+    if input_frames and count > input_frames:
+        return f"{head}; check that the ground truth belongs to this input"
+    return None
+
+
 class GroundTruth:
     """Lazy access to gt/: files are indexed by `source_index` (frame i of the input)."""
 
@@ -96,6 +167,12 @@ class GroundTruth:
 
     def __init__(self, gt_dir: Path) -> None:
         self.dir = Path(gt_dir)
+
+    def has_depth(self, source_index: int) -> bool:
+        return (self.dir / "depth" / f"{source_index:06d}.npy").is_file()
+
+    def depth_count(self) -> int:
+        return sum(1 for _ in (self.dir / "depth").glob("*.npy"))
 
     def has_poses(self) -> bool:
         return (self.dir / "poses.json").is_file()

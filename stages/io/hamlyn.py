@@ -91,6 +91,7 @@ class HamlynGroundTruth:
         self.frames = list_images(self.dir / "image01")
         depth_dir = self.dir / "depth01"
         files = list_images(depth_dir) if depth_dir.is_dir() else []
+        self._count = len(files)
         by_number = {frame_number(f): f for f in files}
         if None not in by_number and len(by_number) == len(files):  # zero padding may differ
             self._files = [by_number.get(frame_number(f)) for f in self.frames]
@@ -112,6 +113,12 @@ class HamlynGroundTruth:
         if raw.ndim == 3:
             raw = raw[..., 0]
         return raw.astype(np.float32)  # already millimetres; 0 = no stereo match
+
+    def has_depth(self, source_index: int) -> bool:
+        return self.depth_file(source_index) is not None
+
+    def depth_count(self) -> int:
+        return self._count
 
     def has_poses(self) -> bool:
         return False

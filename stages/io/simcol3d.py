@@ -155,6 +155,12 @@ class SimCol3DGroundTruth:
             raw = raw[..., 0]
         return decode_depth(raw)
 
+    def has_depth(self, source_index: int) -> bool:
+        return numbered_file(self.numbers, self._depth, source_index) is not None
+
+    def depth_count(self) -> int:
+        return len(self._depth)
+
     def has_poses(self) -> bool:
         return all(p.is_file() for p in pose_files(self.dir))
 

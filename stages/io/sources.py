@@ -5,6 +5,7 @@ Every problem with the input becomes one InputError line that names it and what 
 
 from __future__ import annotations
 
+import json
 import re
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -134,16 +135,13 @@ class ImageFolderSource(InputSource):
         self.files = list_images(path)
         if not self.files:
             raise InputError(f"folder {path} holds no images (png, jpg, bmp, tif); {HINT}")
+        check_one_size(self.files)
 
     def frame_count(self) -> int | None:
         return len(self.files)
 
     def frames(self) -> Iterator[Frame]:
-        for i, f in enumerate(self.files):
-            bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
-            if bgr is None:
-                raise InputError(f"cannot read image {f}; remove it or replace it")
-            yield Frame(i, None, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+        return read_images(self.files)
 
 
 class ImageListSource(InputSource):
@@ -162,16 +160,13 @@ class ImageListSource(InputSource):
         self.files = files
         if not self.files:
             raise InputError(f"{path} holds no frames for the {self.kind} reader; {HINT}")
+        check_one_size(self.files)
 
     def frame_count(self) -> int | None:
         return len(self.files)
 
     def frames(self) -> Iterator[Frame]:
-        for i, f in enumerate(self.files):
-            bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
-            if bgr is None:
-                raise InputError(f"cannot read image {f}; remove it or replace it")
-            yield Frame(i, None, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+        return read_images(self.files)
 
     def digest(self) -> str:
         """Only the frames (and reader, intrinsics) make the ingest key: not the whole folder."""
@@ -183,16 +178,107 @@ class ImageListSource(InputSource):
         return digest_text("|".join(h))
 
 
+#: Keys that look like lens distortion but are not endopipe's (`dist` with `model`): refused,
+#: never dropped in silence.
+DISTORTION_LIKE = re.compile(r"^(k\d|p\d|d|dist.+|distortion.*|.*coeff.*)$", re.IGNORECASE)
+
+
+def read_images(files: list[Path]) -> Iterator[Frame]:
+    """The images as RGB frames, in order; an unreadable one or one of another size stops."""
+    first: tuple[Path, tuple[int, ...]] | None = None
+    for i, f in enumerate(files):
+        bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise InputError(f"cannot read image {f}; remove it or replace it")
+        first = first or (f, bgr.shape[:2])
+        if bgr.shape[:2] != first[1]:
+            _refuse_mixed_sizes(first[0], first[1][::-1], f, bgr.shape[1::-1])
+        yield Frame(i, None, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+
+
+def check_one_size(files: list[Path]) -> None:
+    """All frames from one camera at one resolution, checked from the image headers (Pillow
+    reads only those) before a case folder is made; unreadable files are left to read_images."""
+    from PIL import Image, UnidentifiedImageError
+
+    first: tuple[Path, tuple[int, int]] | None = None
+    for f in files:
+        try:
+            with Image.open(f) as image:
+                size = image.size
+        except (OSError, UnidentifiedImageError):
+            continue
+        first = first or (f, size)
+        if size != first[1]:
+            _refuse_mixed_sizes(first[0], first[1], f, size)
+
+
+def _refuse_mixed_sizes(a: Path, size_a: tuple, b: Path, size_b: tuple) -> None:
+    raise InputError(
+        f"images differ in size: {a.name} is {size_a[0]}x{size_a[1]}, {b.name} is "
+        f"{size_b[0]}x{size_b[1]} (in {b.parent}); endopipe needs every frame from one camera "
+        "at one resolution: move the odd images out, or resize them all to one size"
+    )
+
+
 def load_intrinsics_file(path: Path) -> Camera:
     if not path.is_file():
         raise InputError(f"intrinsics file not found: {path}")
+    _refuse_unread_distortion(path)
     try:
         return Camera.load(path)
     except ValueError as e:
         raise InputError(
-            f"intrinsics file {path} is not valid ({_short(e)}); "
+            f"intrinsics file {path} is not valid ({_invalid_fields(e)}); "
             "it needs width, height, fx, fy, cx, cy"
         ) from None
+
+
+def _invalid_fields(e: ValueError) -> str:
+    """Each wrong field by name and value (`fx: must be > 0, got -500`), not pydantic's
+    "2 validation errors for Camera"; other errors (bad JSON) as their first line."""
+    errors = getattr(e, "errors", None)
+    if not callable(errors):
+        return _short(e)
+    parts = []
+    for err in errors(include_url=False):
+        where = ".".join(str(x) for x in err["loc"])
+        if not where:  # a check across fields (the lens model and its coefficients)
+            parts.append(_plain(err["msg"]))
+        elif err["type"] == "missing":
+            parts.append(f"{where} is missing")
+        else:
+            parts.append(f"{where}: {_plain(err['msg'])}, got {err['input']!r}")
+    return "; ".join(parts)
+
+
+def _plain(msg: str) -> str:
+    """pydantic's wording, shorter: "Input should be greater than 0" -> "must be > 0"."""
+    for long, short in (
+        ("Input should be greater than or equal to", "must be >="),
+        ("Input should be greater than", "must be >"),
+        ("Input should be", "must be"),
+        ("Value error, ", ""),
+    ):
+        msg = msg.replace(long, short)
+    return msg
+
+
+def _refuse_unread_distortion(path: Path) -> None:
+    """A distortion under a name endopipe does not read would be ignored: say so instead."""
+    try:
+        data = json.loads(path.read_text())
+    except (ValueError, OSError):
+        return  # Camera.load says what is wrong with the file
+    if not isinstance(data, dict):
+        return
+    unread = [k for k in data if k not in Camera.model_fields and DISTORTION_LIKE.match(k)]
+    if unread:
+        raise InputError(
+            f"intrinsics file {path} has {', '.join(unread)}, which endopipe does not read; give "
+            'the lens distortion as "dist" (k1, k2, p1, p2 and k3 for "model": "opencv", or '
+            'k1 to k4 for "model": "fisheye")'
+        )
 
 
 def open_input(
@@ -221,7 +307,8 @@ def open_input(
         return open_dataset(path, fmt, intrinsics)
     if fmt == "case" and case_dir is None:
         raise InputError(
-            f"{path} is not an endopipe case folder (intrinsics.json with video.mp4 or frames/)"
+            f"{path} is not an endopipe case folder (video.mp4 or frames/, with intrinsics.json "
+            "and/or gt/)"
         )
     if fmt in ("video", "images"):
         if (fmt == "images") != path.is_dir():
@@ -232,7 +319,8 @@ def open_input(
     if case_dir is not None:
         if intrinsics is None and (case_dir / "intrinsics.json").is_file():
             intrinsics = load_intrinsics_file(case_dir / "intrinsics.json")
-        gt_dir = case_dir / "gt" if (case_dir / "gt").is_dir() else None
+        # Absolute, like a data set's: gt_dir lands in case.json and frames.json.
+        gt_dir = (case_dir / "gt").resolve() if (case_dir / "gt").is_dir() else None
         if path.is_dir():
             path = case_dir / "frames" if (case_dir / "frames").is_dir() else case_dir / "video.mp4"
     if path.is_dir():
@@ -251,15 +339,21 @@ def open_input(
 
 
 def _case_folder_of(path: Path) -> Path | None:
-    """An endopipe case folder: intrinsics.json plus video.mp4 or frames/ (DESIGN §5)."""
+    """An endopipe case folder (DESIGN §5): video.mp4 or frames/, with intrinsics.json and/or
+    gt/. Without intrinsics.json COLMAP estimates the camera, as for a plain video, and gt/ is
+    still evaluated: refusing the folder would make a user drop their ground truth."""
     folder = path if path.is_dir() else path.parent
     has_media = (folder / "video.mp4").is_file() or (folder / "frames").is_dir()
-    if (folder / "intrinsics.json").is_file() and has_media:
+    if _has_case_files(folder) and has_media:
         if path.is_dir() or path.name == "video.mp4" or path.parent.name == "frames":
             return folder
-    if path.is_dir() and path.name == "frames" and (path.parent / "intrinsics.json").is_file():
+    if path.is_dir() and path.name == "frames" and _has_case_files(path.parent):
         return path.parent
     return None
+
+
+def _has_case_files(folder: Path) -> bool:
+    return (folder / "intrinsics.json").is_file() or (folder / "gt").is_dir()
 
 
 def _short(e: BaseException) -> str:

@@ -118,8 +118,8 @@ class Mesh(Stage):
             raw, info = nerf_marching_cubes(ctx.input("nerf"), depth, poses, prior, cfg)
         build_s = time.perf_counter() - t0
         ctx.log(
-            f"{cfg.method}: {len(raw.vertices)} vertices, {len(raw.faces)} faces "
-            f"(voxel {info['voxel_size']:.3g}, depth_trunc {info['depth_trunc']:.3g}) "
+            f"{cfg.method}: {len(raw.vertices):,} vertices, {len(raw.faces):,} faces before "
+            f"clean-up (voxel {info['voxel_size']:.3g}, depth_trunc {info['depth_trunc']:.3g}) "
             f"in {build_s:.1f} s"
         )
         if raw.empty:
@@ -138,6 +138,10 @@ class Mesh(Stage):
             taubin_mu=cfg.taubin_mu,
         )
         clean_s = time.perf_counter() - t1
+        ctx.log(
+            f"clean-up: {clean_info['components_removed']} small components removed; mesh.ply: "
+            f"{len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces"
+        )
         save_mesh(ctx.out, mesh, obj=cfg.export_obj)
 
         metrics: dict[str, Any] = {"evaluated": False}
@@ -172,6 +176,8 @@ class Mesh(Stage):
             method=cfg.method,
             vertices=int(len(mesh.vertices)),
             faces=int(len(mesh.faces)),
+            raw_vertices=int(len(raw.vertices)),
+            raw_faces=int(len(raw.faces)),
             **{k: v if isinstance(v, int) else float(v) for k, v in info.items()},
             **clean_info,
         )

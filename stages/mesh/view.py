@@ -65,8 +65,10 @@ class MeshMetrics(TypedDict, total=False):
     eval_s: float
     # how the surface was made
     method: str
-    vertices: int
+    vertices: int  # in mesh.ply, after clean-up
     faces: int
+    raw_vertices: int  # as built, before clean-up
+    raw_faces: int
     voxel_size: float
     sdf_trunc: float
     depth_trunc: float

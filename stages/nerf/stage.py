@@ -214,13 +214,13 @@ def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) 
         img = ingest.image(i).astype(np.float32) / 255.0
         m = ingest.mask(i) > 127
         mses.append(float(((out["rgb"] - img) ** 2).mean(-1)[m].mean()) if m.any() else np.nan)
-        previews.append((img, out))
         g = depth_of_frame(gt, ingest.frame(i))
-        if g is not None:
-            if g.shape != out["depth"].shape:
-                import cv2
+        if g is not None and g.shape != out["depth"].shape:
+            import cv2
 
-                g = cv2.resize(g, out["depth"].shape[::-1], interpolation=cv2.INTER_NEAREST)
+            g = cv2.resize(g, out["depth"].shape[::-1], interpolation=cv2.INTER_NEAREST)
+        previews.append((img, out, g))
+        if g is not None:
             preds.append(out["depth"])
             gts.append(g)
             fovs.append(fov > 127 if fov is not None else None)
@@ -241,57 +241,89 @@ def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) 
         result["depth"] = {k: metrics[k] for k in ("median_scaled", "sequence_scaled", "unscaled")}
         result["depth_frames"] = len(preds)
     if previews:
-        write_preview(ctx.out / "heldout.png", previews[:4], gts[:4] if gts else None)
+        poses = ctx.input("poses")
+        write_preview(ctx.out / "heldout.png", previews[:4], poses.file.units, poses.metric)
     return result
 
 
-def write_preview(path: Path, items, gts) -> None:
-    """Rows of held-out frames: image, rendering, rendered depth, ground-truth depth."""
-    import cv2
+#: Depth is drawn with one colour map everywhere (this grid, 05_depth/preview.mp4, the report).
+DEPTH_CMAP = "turbo"
 
-    rows = []
-    for n, (img, out) in enumerate(items):
-        d = out["depth"]
-        ref = gts[n] if gts else d
-        lo, hi = np.percentile(ref[ref > 0], [1, 99]) if (ref > 0).any() else (0.0, 1.0)
 
-        def colour(z, lo=lo, hi=hi):
-            x = np.clip(
-                (np.log(np.maximum(z, 1e-6)) - np.log(lo)) / (np.log(hi) - np.log(lo)), 0, 1
-            )
-            c = cv2.applyColorMap((x * 255).astype(np.uint8), cv2.COLORMAP_TURBO)[:, :, ::-1]
-            return np.where((z > 0)[..., None], c, 0).astype(np.uint8)
+def write_preview(path: Path, items, units: str = "", metric: bool = True) -> None:
+    """heldout.png: the held-out grid of `heldout_figure`."""
+    heldout_figure(items, units, metric).savefig(path, facecolor="white")
 
-        tiles = [(img * 255).astype(np.uint8), (out["rgb"] * 255).astype(np.uint8), colour(d)]
-        if gts:
-            tiles.append(colour(gts[n]))
-        rows.append(np.concatenate(tiles, 1))
-    cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(rows, 0), cv2.COLOR_RGB2BGR))
+
+def heldout_figure(items, units: str = "", metric: bool = True):
+    """Held-out frames, a row each: image | rendering | rendered depth | ground-truth depth,
+    with column titles and a colour bar per depth panel. With metric poses the rendered depth
+    shares the ground truth's colour scale; otherwise each has its own. `items`: (image,
+    rendering {rgb, depth}, ground-truth depth or None) per frame."""
+    from matplotlib.figure import Figure
+
+    h, w = items[0][1]["depth"].shape[:2]
+    titles = ["held-out image", "NeRF rendering", f"rendered depth ({units or 'scene units'})"]
+    has_gt = any(g is not None for _, _, g in items)
+    if has_gt:
+        titles.append(f"ground-truth depth ({units or 'GT units'})")
+    ncols, tile = len(titles), 2.6
+    fig = Figure(figsize=(tile * ncols + 0.6, len(items) * tile * h / w + 0.6), dpi=100)
+    for r, (img, out, gt) in enumerate(items):
+        axes = [fig.add_subplot(len(items), ncols, r * ncols + c + 1) for c in range(ncols)]
+        axes[0].imshow(np.clip(img, 0, 1))
+        axes[1].imshow(np.clip(out["rgb"], 0, 1))
+        depth_panels = [(axes[2], out["depth"])] + ([(axes[3], gt)] if gt is not None else [])
+        shared = _depth_range(gt) if gt is not None and metric else None
+        if has_gt and gt is None:
+            axes[3].text(0.5, 0.5, "no ground truth", ha="center", va="center", color="0.5")
+        for ax, z in depth_panels:
+            lo, hi = shared or _depth_range(z)
+            im = ax.imshow(np.ma.masked_where(z <= 0, z), cmap=DEPTH_CMAP, vmin=lo, vmax=hi)
+            fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02).ax.tick_params(labelsize=6)
+        for c, ax in enumerate(axes):
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.set_title(titles[c], fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def _depth_range(z: np.ndarray) -> tuple[float, float]:
+    """The 2nd to 98th percentile of the valid depth: the colour scale of a depth panel."""
+    valid = z[(z > 0) & np.isfinite(z)]
+    lo, hi = np.percentile(valid, [2, 98]) if valid.size else (0.0, 1.0)
+    return float(lo), float(hi if hi > lo else lo + 1e-6)
 
 
 def plot_log(rows: list[dict], path: Path) -> None:
-    import matplotlib
+    """loss.png: the curves of `loss_figure` (nothing without a logged step)."""
+    if rows:
+        loss_figure(rows).savefig(path, facecolor="white")
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    if not rows:
-        return
+def loss_figure(rows: list[dict]):
+    """Losses (log scale; the legend beside the plot, never over a curve) and training PSNR."""
+    from matplotlib.figure import Figure
+
     steps = [r["step"] for r in rows]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    fig = Figure(figsize=(11, 3.6), dpi=90)
+    loss_ax, psnr_ax = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
     for key in ("loss", "photo", "prior", "smooth", "geo", "sparse"):
         vals = [r.get(key) for r in rows]
         if any(v is not None for v in vals):
-            axes[0].plot(steps, [np.nan if v is None else v for v in vals], label=key)
-    axes[0].set_yscale("log")
-    axes[0].set_xlabel("step")
-    axes[0].legend()
-    axes[1].plot(steps, [r["psnr"] for r in rows])
-    axes[1].set_xlabel("step")
-    axes[1].set_ylabel("train PSNR (dB)")
+            loss_ax.plot(steps, [np.nan if v is None else v for v in vals], label=key)
+    loss_ax.set_yscale("log")
+    loss_ax.set_xlabel("step")
+    loss_ax.set_title("training losses (log scale)", fontsize=10)
+    loss_ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
+    psnr_ax.plot(steps, [r["psnr"] for r in rows])
+    psnr_ax.set_xlabel("step")
+    psnr_ax.set_ylabel("train PSNR (dB)")
+    psnr_ax.set_title("training PSNR (batch rays)", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return fig
 
 
 def describe_config() -> str:

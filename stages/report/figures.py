@@ -178,8 +178,10 @@ def plot_depth_preview(rows: list[PreviewRow], units: str, error_max: float) -> 
     h, w = rows[0].depth.shape[:2]
     tile_w = 3.1
     fig = _figure(tile_w * ncols + 0.8, len(rows) * tile_w * h / w + 0.5)
-    turbo = colormaps["turbo"].with_extremes(bad="black")
-    inferno = colormaps["inferno"].with_extremes(bad="#202020")
+    from endopipe.stages.depth.preview import DEPTH_CMAP, ERROR_CMAP
+
+    turbo = colormaps[DEPTH_CMAP].with_extremes(bad="black")  # as in preview.mp4: black = none
+    inferno = colormaps[ERROR_CMAP].with_extremes(bad="black")
     for r_i, row in enumerate(rows):
         valid = (row.depth > 0) & np.isfinite(row.depth)
         ref = row.gt[row.gt > 0] if row.gt is not None and (row.gt > 0).any() else None

@@ -84,6 +84,15 @@ def grid(
     return _call("grid", head, cells, cls, list(num), row_head)
 
 
+def grouped_table(groups: list[tuple[str, list[tuple[str, str, str]]]]) -> str:
+    """One table in titled groups of rows (label text, value HTML, note HTML); empty groups
+    are left out."""
+    shown = [
+        (title, [(k, Markup(v), Markup(n)) for k, v, n in rows]) for title, rows in groups if rows
+    ]
+    return _call("grouped_table", shown)
+
+
 def stages_table(rows: list[dict[str, Any]], total_wall: str, peak_mb: float) -> str:
     """The stage table; a row is {stage, folder, manifest: False} or, with a manifest, also
     {wall, share, peak_mb, files, size_mb, version, key, finished}."""

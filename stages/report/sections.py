@@ -4,11 +4,13 @@ nothing at all to show (the page then says "not available")."""
 from __future__ import annotations
 
 import datetime as dt
+import os
 import platform
 from typing import Any
 
 import cv2
 import numpy as np
+import psutil
 
 from endopipe.stages.report.figures import (
     Curve,
@@ -26,6 +28,7 @@ from endopipe.stages.report.kit import (
     figure_html,
     fmt,
     grid,
+    grouped_table,
     kv_table,
     not_available,
     one_line,
@@ -161,6 +164,8 @@ def section_summary(data: CaseData, info: Any) -> str:
     if ing.get("dropped"):
         dropped = ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in ing["dropped"].items() if v)
         rows.append(("Frames dropped", text(dropped or "none")))
+    for warning in ing.get("warnings") or []:  # e.g. ground truth that does not match
+        rows.append(("Warning", text(warning)))
     if poses is not None:
         cams = poses.file
         rows.append(
@@ -417,16 +422,31 @@ def section_nerf(data: CaseData, info: Any) -> str | None:
             ),
             ("Training time", fmt(s.get("train_s"), "s")),
             ("Throughput", fmt(s.get("rays_per_s"), "rays/s")),
-            ("Render time per frame", fmt(s.get("render_ms"), "ms")),
+            (
+                "Field render time, depth only",
+                fmt(s.get("render_ms"), "ms") + " per held-out frame",
+            ),
             ("Device", text(s.get("device", "—"))),
         ]
         if s.get("resumed_from"):
             rows.append(("Resumed from step", fmt(s.get("resumed_from"))))
     nm = data.nerf_metrics or {}
+    if nm.get("render_rgb_ms") is not None:
+        rows.append(
+            (
+                "Field render time, colour and depth",
+                fmt(nm.get("render_rgb_ms"), "ms") + " per held-out frame",
+            )
+        )
     if nm.get("psnr") is not None or s.get("heldout_psnr") is not None:
         rows.append(("Held-out PSNR", fmt(nm.get("psnr", s.get("heldout_psnr")), "dB")))
     if rows:
         parts.append(kv_table(rows))
+        parts.append(
+            '<p class="note">Render times: one full frame rendered by the trained field (ray '
+            "marching), timed on the held-out frames. The depth stage renders every frame again, "
+            "with its own renderer and time (Depth section).</p>"
+        )
     if isinstance(nm.get("depth"), dict):
         parts.append(
             "<h3>Rendered depth on held-out frames</h3>"
@@ -582,6 +602,29 @@ def depth_previews(data: CaseData) -> str:
     return figure_html(uri, cap + ".", "wide" if has_gt else "medium") + note
 
 
+RENDERERS = {
+    "baked": "the surface baked from the field once, then ray cast",
+    "field": "the field itself, ray marched",
+}
+
+
+def depth_render_rows(data: CaseData) -> str:
+    """How the depth stage rendered its maps, and what a frame cost (beside the NeRF's time)."""
+    s = data.summary("depth")
+    if not s:
+        return ""
+    renderer = str(s.get("renderer", ""))
+    how = f"{renderer}: {RENDERERS[renderer]}" if renderer in RENDERERS else renderer
+    rows = [
+        ("Depth maps", f"{fmt(s.get('frames'))} (every registered frame)"),
+        ("Renderer", text(how)),
+        ("Depth stage render time", fmt(s.get("ms_per_frame"), "ms") + " per frame (median)"),
+    ]
+    if renderer == "baked" and _number(s.get("bake_s")) is not None:
+        rows.append(("Baking the surface", fmt(s.get("bake_s"), "s") + " once"))
+    return "<h3>Rendering</h3>" + kv_table(rows)
+
+
 def section_depth(data: CaseData, info: Any) -> str | None:
     if data.depth is None:
         if "depth" in data.view_errors:
@@ -618,13 +661,18 @@ def section_depth(data: CaseData, info: Any) -> str | None:
         )
         parts.append("<h3>Depth accuracy</h3>" + not_available(reason))
 
+    parts.append(depth_render_rows(data))
     parts.append("<h3>Previews</h3>" + depth_previews(data))
 
     preview = data.depth.preview_path
     if preview.is_file() and data.cfg.include_video:
         size_mb = preview.stat().st_size / 2**20
         if size_mb <= data.cfg.max_video_mb:
-            note = "05_depth/preview.mp4: RGB | depth | error."
+            note = (
+                "05_depth/preview.mp4, every registered frame: image | estimated depth (turbo, "
+                "one scale for the video) | abs-rel error after per-frame median scaling "
+                "(inferno, the colour maps of the previews above)."
+            )
             parts.append("<h3>Preview video</h3>" + video_html(video_uri(preview), note))
         else:
             parts.append(
@@ -640,55 +688,160 @@ def section_depth(data: CaseData, info: Any) -> str | None:
 # --- mesh -------------------------------------------------------------------------------------
 
 
-def _flat_numbers(data: dict, prefix: str = "") -> dict[str, float]:
-    out: dict[str, float] = {}
-    for k, v in data.items():
-        key = f"{prefix}{k}"
-        if isinstance(v, dict):
-            out.update(_flat_numbers(v, key + "."))
-        elif _number(v) is not None:
-            out[key] = float(v)
-    return out
+Row = tuple[str, str, str]  # label, value (HTML), note (HTML)
+
+#: metrics.json / summary keys the mesh table shows in its own rows (anything else numeric is
+#: listed under "other values", so nothing the stage wrote is dropped without a word).
+MESH_SHOWN = {
+    "evaluated", "reason", "gt_kind", "chamfer", "chamfer_pct_radius", "accuracy",
+    "completeness", "accuracy_median", "completeness_median", "precision", "recall", "fscore",
+    "threshold", "gt_area_seen", "gt_points", "est_points", "by_camera_distance", "aligned",
+    "sim3_scale", "mean_radius", "crop_max_depth", "crop", "eval_s", "method", "vertices",
+    "faces", "raw_vertices", "raw_faces", "voxel_size", "sdf_trunc", "depth_trunc",
+    "frames_used", "level", "band_nodes", "faces_extracted", "seen_fraction",
+    "components_removed", "units", "build_s", "clean_s",
+}  # fmt: skip
+METHODS = {
+    "tsdf": "TSDF fusion of the depth maps",
+    "marching_cubes": "marching cubes on the NeRF's density",
+}
 
 
-#: Labels of the mesh stage's metrics.json keys (stages.surface.evaluate, stages.mesh).
-MESH_LABELS = (
-    ("chamfer", "Chamfer distance (mean of both directions)"),
-    ("fscore", "F-score"),
-    ("precision", "Precision"),
-    ("recall", "Recall"),
-    ("accuracy", "Accuracy (est. → GT)"),
-    ("completeness", "Completeness (GT → est.)"),
-    ("threshold", "F-score threshold"),
-    ("vertices", "Vertices"),
-    ("faces", "Faces"),
-)
+def _count(value: Any) -> str:
+    number = _number(value)
+    return fmt(int(number)) if number is not None else fmt(None)
 
 
-def mesh_metric_rows(metrics: dict, units: str) -> list[tuple[str, str]]:
-    rows = []
-    for key, value in _flat_numbers(metrics).items():
-        low = key.lower()
-        label = next((lab for needle, lab in MESH_LABELS if needle in low), None)
-        shown = key if label is None else f"{label} [{key}]"
-        if "pct" in low or "percent" in low:
-            unit = "%"
-        elif any(n in low for n in ("fscore", "precision", "recall", "scale", "_s")):
-            unit = ""
-        elif any(n in low for n in ("chamfer", "threshold", "accuracy", "complet", "radius")):
-            unit = units
-        elif "depth" in low:
-            unit = units
-        else:
-            unit = ""
-        if float(value).is_integer() and any(n in low for n in ("vertices", "faces", "count")):
-            rows.append((shown, fmt(int(value))))
-        else:
-            rows.append((shown, fmt(value, unit)))
-    for key, value in metrics.items():
-        if isinstance(value, str | bool) and key not in ("evaluated", "reason"):
-            rows.append((key.replace("_", " "), fmt(value)))
+def mesh_accuracy_rows(m: dict, u: str) -> list[Row]:
+    """The comparison with the ground-truth surface, in the truth's units `u`."""
+    tau = _number(m.get("threshold"))
+    at = f"{tau:g} {u}" if tau is not None else "the threshold"
+    pct = _number(m.get("chamfer_pct_radius"))
+    rows = [
+        (
+            "Chamfer distance",
+            fmt(_number(m.get("chamfer")), u),
+            "mean of accuracy and completeness"
+            + (f"; {fmt(pct, '%')} of the lumen radius" if pct is not None else ""),
+        ),
+        (
+            "Accuracy",
+            fmt(_number(m.get("accuracy")), u),
+            f"mean distance, estimate → truth (median {fmt(_number(m.get('accuracy_median')), u)})",
+        ),
+        (
+            "Completeness",
+            fmt(_number(m.get("completeness")), u),
+            "mean distance, truth → estimate "
+            f"(median {fmt(_number(m.get('completeness_median')), u)})",
+        ),
+        ("F-score", fmt(_number(m.get("fscore"))), f"at {text(at)}"),
+        ("Precision", fmt(_number(m.get("precision"))), f"share of the estimate within {text(at)}"),
+        ("Recall", fmt(_number(m.get("recall"))), f"share of the truth within {text(at)}"),
+    ]
+    keys = ("chamfer", "accuracy", "completeness", "fscore", "precision", "recall")
+    if not m.get("evaluated"):
+        return []
+    return [row for row, key in zip(rows, keys, strict=True) if _number(m.get(key)) is not None]
+
+
+def mesh_evaluation_rows(m: dict, u: str) -> list[Row]:
+    """How the comparison was made: alignment, region, samples, time."""
+    if not m.get("evaluated"):
+        return []
+    aligned = str(m.get("aligned") or "")
+    how = {
+        "gt_frame": ("none", "the poses are already in the ground truth's frame"),
+        "sim3": (
+            f"sim(3), scale {fmt(_number(m.get('sim3_scale')))}",
+            "similarity transform of the trajectory onto the truth's (Umeyama)",
+        ),
+    }.get(aligned, (text(aligned or "—"), ""))
+    rows = [("Alignment", how[0], how[1])]
+    if m.get("crop"):
+        crop = text(m["crop"]).replace("gt surface", "ground-truth surface")
+        crop = crop.replace(" within crop_max_depth", "")
+        rows.append(
+            (
+                "Region compared",
+                fmt(_number(m.get("crop_max_depth")), u),
+                f"{crop}, up to this depth",
+            )
+        )
+    if _number(m.get("gt_area_seen")) is not None:
+        rows.append(("Truth surface compared", fmt(m["gt_area_seen"], f"{u}²"), "area"))
+    if m.get("gt_points") is not None:
+        rows.append(
+            (
+                "Points sampled",
+                f"{_count(m.get('est_points'))} / {_count(m.get('gt_points'))}",
+                "on the estimate / on the truth",
+            )
+        )
+    if _number(m.get("mean_radius")) is not None:
+        rows.append(("Lumen radius", fmt(m["mean_radius"], u), "the truth's mean: the % above"))
+    if _number(m.get("eval_s")) is not None:
+        rows.append(("Evaluation time", fmt(m["eval_s"], "s"), ""))
     return rows
+
+
+def mesh_build_rows(m: dict, summary: dict, units: str) -> list[Row]:
+    """The surface itself: method, size after clean-up (what mesh.ply holds), parameters."""
+    rows: list[Row] = []
+    method = str(m.get("method") or summary.get("method") or "")
+    if method:
+        rows.append(("Method", text(method), text(METHODS.get(method, ""))))
+    vertices = m.get("vertices", summary.get("vertices"))
+    faces = m.get("faces", summary.get("faces"))
+    if vertices is not None:
+        before = (
+            f"before clean-up {_count(m['raw_vertices'])} vertices, {_count(m.get('raw_faces'))}"
+            " faces"
+            if m.get("raw_vertices") is not None
+            else ""
+        )
+        rows.append(("Vertices", _count(vertices), "in mesh.ply, after clean-up"))
+        rows.append(("Faces", _count(faces), before))
+    if m.get("components_removed") is not None:
+        rows.append(("Clean-up", _count(m["components_removed"]), "small components removed"))
+    for key, label, note in (
+        ("voxel_size", "Voxel size", ""),
+        ("sdf_trunc", "SDF truncation", ""),
+        ("depth_trunc", "Depth truncation", "depth beyond this is not fused"),
+    ):
+        if _number(m.get(key, summary.get(key))) is not None:
+            rows.append((label, fmt(float(m.get(key, summary.get(key))), units), note))
+    if m.get("frames_used", summary.get("frames_used")) is not None:
+        rows.append(("Frames used", _count(m.get("frames_used", summary.get("frames_used"))), ""))
+    for key, label in (("build_s", "Build time"), ("clean_s", "Clean-up time")):
+        if _number(summary.get(key)) is not None:
+            rows.append((label, fmt(summary[key], "s"), ""))
+    return rows
+
+
+def mesh_other_rows(m: dict) -> list[Row]:
+    """Numbers in metrics.json that the table has no row for, under their own key."""
+    return [
+        (key.replace("_", " "), fmt(v), f"<code>{text(key)}</code>")
+        for key, v in m.items()
+        if key not in MESH_SHOWN and (_number(v) is not None or isinstance(v, str))
+    ]
+
+
+def mesh_table(data: CaseData) -> str:
+    """The mesh's numbers in one table: accuracy, how it was evaluated, the surface."""
+    m = data.mesh_metrics or {}
+    summary = data.summary("mesh")
+    gt_units = str(getattr(data.ground_truth(), "units", "") or "mm") if m.get("evaluated") else ""
+    units = str(summary.get("units") or data.units)
+    return grouped_table(
+        [
+            (f"Accuracy against the ground truth ({gt_units})", mesh_accuracy_rows(m, gt_units)),
+            ("How it was evaluated", mesh_evaluation_rows(m, gt_units)),
+            ("The surface (06_mesh/mesh.ply)", mesh_build_rows(m, summary, units)),
+            ("Other values in metrics.json", mesh_other_rows(m)),
+        ]
+    )
 
 
 def distance_band_table(bands: Any, radius: Any, units: str) -> str:
@@ -734,22 +887,14 @@ def section_mesh(data: CaseData, info: Any) -> str | None:
             info.mesh_viewer = "none"
             return not_available(f"06_mesh unreadable: {data.view_errors['mesh']}")
         return None
-    parts = []
+    parts = ["<h3>Surface accuracy</h3>"]
     mm = data.mesh_metrics
     if mm and mm.get("evaluated") is False:
-        parts.append(
-            "<h3>Surface accuracy</h3>"
-            + not_available(f"not evaluated: {mm.get('reason') or 'no reason given'}")
-        )
+        parts.append(not_available(f"not evaluated: {mm.get('reason') or 'no reason given'}"))
     elif mm:
-        gt_units = str(getattr(data.ground_truth(), "units", "") or "mm")
-        rows = mesh_metric_rows(mm, gt_units)
         parts.append(
-            '<h3>Surface accuracy</h3><p class="note">After aligning the estimated trajectory '
-            "to the ground truth with a similarity transform (Umeyama); Chamfer distance in the "
-            "ground truth's units, F-score at the stated threshold.</p>"
-            + (kv_table(rows) if rows else not_available("metrics.json holds no numbers"))
-            + distance_band_table(mm.get("by_camera_distance"), mm.get("mean_radius"), gt_units)
+            '<p class="note">The estimated surface against the ground-truth surface that the '
+            "cameras saw, in the ground truth's units.</p>"
         )
     else:
         reason = (
@@ -757,12 +902,13 @@ def section_mesh(data: CaseData, info: Any) -> str | None:
             if info.gt_kind == "none"
             else "06_mesh/metrics.json is missing"
         )
-        parts.append("<h3>Surface accuracy</h3>" + not_available(reason))
-    ms = data.summary("mesh")
-    if ms:
-        rows = [(k.replace("_", " "), fmt(v)) for k, v in ms.items() if not isinstance(v, dict)]
-        if rows:
-            parts.append(kv_table(rows))
+        parts.append(not_available(reason))
+    parts.append(mesh_table(data))
+    if mm and mm.get("evaluated"):
+        gt_units = str(getattr(data.ground_truth(), "units", "") or "mm")
+        parts.append(
+            distance_band_table(mm.get("by_camera_distance"), mm.get("mean_radius"), gt_units)
+        )
     parts.append(mesh_views(data, info))
     return "".join(parts)
 
@@ -830,23 +976,44 @@ def mesh_views(data: CaseData, info: Any) -> str:
 # --- runs -------------------------------------------------------------------------------------
 
 
+def run_state(record: Any) -> str:
+    """The run's result as a badge. A record without an end is the run writing this page (its
+    process is alive), or a run whose process died before it could record its end."""
+    if record.finished is not None:
+        return badge("ok", "ok") if record.ok else badge("failed", "bad")
+    if record.pid == os.getpid() and record.host == platform.node():
+        return badge("this run, in progress", "warn")
+    if record.host == platform.node() and record.pid and psutil.pid_exists(record.pid):
+        return badge(f"in progress (pid {record.pid})", "warn")
+    return badge("no end recorded (killed?)", "bad")
+
+
+def run_row(record: Any) -> list[str]:
+    """One run: started, result, wall time, what ran, what came from the cache."""
+    ran = ", ".join(s.stage for s in record.stages if s.status == "ran") or "—"
+    cached = ", ".join(s.stage for s in record.stages if s.status == "cached") or "—"
+    failed = [s for s in record.stages if s.status == "failed"]
+    why = text(failed[0].reason) if failed else ""
+    if record.finished is None:
+        done = len(record.stages)
+        why = text(f"{done} stage(s) done so far" if done else "no stage done yet")
+    wall = duration(record.wall_s) + (" so far" if record.finished is None else "")
+    return [text(record.started), f"{run_state(record)} {why}", wall, text(ran), text(cached)]
+
+
 def section_runs(data: CaseData, info: Any) -> str | None:
     from endopipe.pipeline.runner import package_versions
 
     parts = []
     records = data.runs
     if records:
-        rows = []
-        for r in records:
-            ran = ", ".join(s.stage for s in r.stages if s.status == "ran") or "—"
-            cached = ", ".join(s.stage for s in r.stages if s.status == "cached") or "—"
-            failed = [s for s in r.stages if s.status == "failed"]
-            state = badge("ok", "ok") if r.ok else badge("failed", "bad")
-            why = text(failed[0].reason) if failed else ""
-            rows.append(
-                [text(r.started), f"{state} {why}", duration(r.wall_s), text(ran), text(cached)]
-            )
+        rows = [run_row(r) for r in records]
         parts.append(grid(["started", "result", "wall time", "ran", "cached"], rows, num=(2,)))
+        if records[0].finished is None:
+            parts.append(
+                '<p class="note">The newest run was still going when this page was written: '
+                "it lists the stages done before the report stage.</p>"
+            )
         packages = records[0].packages
         host, python = records[0].host, records[0].python
     else:

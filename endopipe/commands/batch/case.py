@@ -13,9 +13,10 @@ from pathlib import Path
 from typing import Any
 
 from endopipe.commands.batch.rows import CaseRow, CaseTask, numeric_leaves
+from endopipe.pipeline.cache import Manifest
 from endopipe.pipeline.errors import EndopipeError, one_line
 from endopipe.pipeline.executors import limit_threads
-from endopipe.pipeline.runner import Pipeline, RunRecord
+from endopipe.pipeline.runner import Pipeline, RunRecord, read_runs
 from endopipe.pipeline.stage import CaseInfo
 
 #: prepare_case(input, workdir, name, intrinsics, input_format) -> the case folder.
@@ -47,9 +48,11 @@ def process_case(
             s.name: s.Config.model_validate(task.configs.get(s.name, {})) for s in pipe.stages
         }
         selected = [s.name for s in pipe.selection(task.until)]
+        row.failed_stage = selected[0]  # reading the input is the first stage's job
         source = open_input(path, None, format=task.reader)
         gt = source.ground_truth()
         row.gt_kind = gt.kind if gt is not None else ""
+        row.failed_stage = None
         if task.check_only:
             if not _all_fresh(pipe, case_dir, path, source, configs, task.until):
                 row.status = "pending"
@@ -60,14 +63,13 @@ def process_case(
             record = pipe.run(case_dir, configs, until=task.until, quiet=True)
             row.stages_ran = [s.stage for s in record.stages if s.status == "ran"]
             row.stages_cached = [s.stage for s in record.stages if s.status == "cached"]
-        for name in selected:
-            manifest = pipe.manifest(case_dir, name)
-            if manifest is None:
-                continue
+        manifests = {n: m for n in selected if (m := pipe.manifest(case_dir, n)) is not None}
+        for name, manifest in manifests.items():
             row.compute_s += manifest.wall_s
             row.peak_rss_mb = max(row.peak_rss_mb, manifest.peak_rss_mb)
             for key, value in numeric_leaves(manifest.summary).items():
                 row.metrics[f"{name}.{key}"] = value
+        row.wall_s = producing_wall_s(case_dir, manifests)
         report = _report_page(pipe, case_dir)
         row.report = report.relative_to(workdir).as_posix() if report else None
         row.status = "ok"
@@ -87,8 +89,33 @@ def process_case(
         except OSError:
             pass
         _note_failed_stage(row, case_dir, started)
-    row.wall_s = time.perf_counter() - t0
+    row.this_batch_s = time.perf_counter() - t0
+    if row.status != "ok":
+        row.wall_s = row.this_batch_s
     return row
+
+
+def producing_wall_s(case_dir: Path, manifests: dict[str, Manifest]) -> float:
+    """The wall time of the runs that made these stage outputs: each run record (counted once)
+    in which one of them ran; a stage with no such record counts its own time."""
+    records = read_runs(case_dir)
+    producers: set[int] = set()
+    alone = 0.0
+    for name, manifest in manifests.items():
+        n = next((n for n, r in enumerate(records) if _made(r, name, manifest)), None)
+        if n is None:
+            alone += manifest.wall_s
+        else:
+            producers.add(n)
+    return sum(records[n].wall_s for n in producers) + alone
+
+
+def _made(record: RunRecord, stage: str, manifest: Manifest) -> bool:
+    """Whether `record` is the run that wrote `manifest` (same stage, ran, same wall time)."""
+    return any(
+        s.stage == stage and s.status == "ran" and abs(s.wall_s - manifest.wall_s) < 1e-9
+        for s in record.stages
+    )
 
 
 def _report_page(pipe: Pipeline, case_dir: Path) -> Path | None:

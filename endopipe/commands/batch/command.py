@@ -110,7 +110,7 @@ def print_case_row(console: Console, row: CaseRow) -> None:
         gt = f"  [yellow]{row.gt_kind} ground truth[/yellow]" if row.gt_kind == "pseudo" else ""
         console.print(
             f"[green]✓[/green] {escape(row.case)}  [dim]{row.reader}[/dim]  ran {ran}, "
-            f"{row.wall_s:.1f} s{gt}"
+            f"{row.this_batch_s:.1f} s{gt}"
         )
     else:
         console.print(

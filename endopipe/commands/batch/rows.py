@@ -33,7 +33,11 @@ class CaseRow(BaseModel):
     stages_cached: list[str] = []
     failed_stage: str | None = None
     reason: str = ""
-    wall_s: float = 0.0  # this batch's time on the case, start to finish
+    # wall_s: the wall time of the run(s) that made the case's current outputs, kept when a
+    # re-run finds them cached (for a failed case: this batch's time on it). this_batch_s:
+    # this batch's time on the case, near 0 when everything was cached.
+    wall_s: float = 0.0
+    this_batch_s: float = 0.0
     compute_s: float = 0.0  # sum of the stages' own wall times (from their manifests)
     peak_rss_mb: float = 0.0  # the largest stage peak (from their manifests)
     metrics: dict[str, float] = {}

@@ -20,10 +20,11 @@ FIXED_COLUMNS = (
     "failed_stage",
     "reason",
     "wall_s",
+    "this_batch_s",
     "compute_s",
     "peak_rss_mb",
 )
-NUMERIC_FIXED = ("wall_s", "compute_s", "peak_rss_mb")
+NUMERIC_FIXED = ("wall_s", "this_batch_s", "compute_s", "peak_rss_mb")
 
 
 def metric_columns(rows: Sequence[CaseRow]) -> list[str]:
