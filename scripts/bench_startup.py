@@ -21,7 +21,8 @@ import numpy as np
 ENDOPIPE = [sys.executable, "-m", "endopipe"]
 
 
-def make_case(root: Path) -> Path:
+def make_case(root: Path) -> tuple[Path, str]:
+    """An 8-frame image folder run up to ingest: (workdir, case name)."""
     frames = root / "frames"
     frames.mkdir()
     rng = np.random.default_rng(0)
@@ -29,8 +30,8 @@ def make_case(root: Path) -> Path:
     for i in range(8):
         cv2.imwrite(str(frames / f"{i:04d}.png"), base[:, 4 * i : 4 * i + 160].astype(np.uint8))
     cmd = [*ENDOPIPE, "run", str(frames), "--workdir", str(root / "wd"), "--until", "ingest"]
-    subprocess.run([*cmd, "--quiet"], check=True, capture_output=True)
-    return root / "wd"
+    subprocess.run([*cmd, "--name", "startup", "--quiet"], check=True, capture_output=True)
+    return root / "wd", "startup"
 
 
 def time_command(args: list[str], runs: int) -> list[float]:
@@ -47,10 +48,10 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=15)
     runs = parser.parse_args().runs
     with tempfile.TemporaryDirectory() as tmp:
-        wd = make_case(Path(tmp))
+        wd, case = make_case(Path(tmp))
         commands = {
             "endopipe --help": [*ENDOPIPE, "--help"],
-            "endopipe status CASE": [*ENDOPIPE, "status", "frames", "--workdir", str(wd)],
+            "endopipe status CASE": [*ENDOPIPE, "status", case, "--workdir", str(wd)],
         }
         for name, args in commands.items():
             t = time_command(args, runs)
