@@ -26,7 +26,6 @@ from endopipe.stages.depth.view import (
     frame_file,
 )
 from endopipe.stages.ingest.view import IngestView
-from endopipe.stages.io.ground_truth import open_ground_truth
 from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
 
@@ -92,7 +91,7 @@ class Depth(Stage):
                     rgbs[i] = out["rgb"]
                 advance(info=f"{1000 * times[-1]:.0f} ms/frame")
         png_scale = write_depth_pngs(ctx.out / DEPTH_DIR, depths)
-        gt = open_ground_truth(Path(ctx.case.gt_dir)) if ctx.case.gt_dir else None
+        gt = ingest.ground_truth()
         gt_depths = ground_truth_depths(gt, ingest, list(depths))
         metrics = evaluate(gt, ingest, depths, gt_depths, rgbs)
         write_json(ctx.out / METRICS_FILE, metrics)
