@@ -309,6 +309,19 @@ def synth(
     width: int = 320,
     height: int = 256,
     shape: Annotated[str, typer.Option(help="colon | cavity")] = "colon",
+    lens: Annotated[
+        str, typer.Option(help="pinhole | barrel (OpenCV k1,k2) | fisheye (OpenCV equidistant)")
+    ] = "pinhole",
+    fov_diag: Annotated[
+        float | None,
+        typer.Option(
+            help="Diagonal field of view, deg (unset: barrel 110, fisheye 140, pinhole 90 "
+            "across the width)."
+        ),
+    ] = None,
+    vignetting: Annotated[
+        float, typer.Option(help="Corners get 1 - S of the centre's light (linear); 0 = off.")
+    ] = 0.0,
 ) -> None:
     """Write a synthetic lumen case with exact ground truth (depth, poses, mesh, speculars)."""
     from pydantic import ValidationError
@@ -317,7 +330,16 @@ def synth(
     from endopipe.pipeline.runner import ensure_writable
 
     try:
-        cfg = SynthConfig(seed=seed, frames=frames, width=width, height=height, shape=shape)
+        cfg = SynthConfig(
+            seed=seed,
+            frames=frames,
+            width=width,
+            height=height,
+            shape=shape,
+            lens=lens,
+            fov_diag_deg=fov_diag,
+            vignetting=vignetting,
+        )
     except ValidationError as e:
         err = e.errors()[0]
         raise EndopipeError(f"synth {'.'.join(map(str, err['loc']))}: {err['msg']}") from None

@@ -230,6 +230,11 @@ def test_synth_colon_from_a_poses_folder(small_colon: Path, tmp_path: Path) -> N
     assert scores["radius_error_pct"] <= BOUND_PCT
 
 
+class _NoNames:
+    def index_by_name(self) -> dict[str, int]:
+        return {}
+
+
 def test_stage_run_writes_outputs(small_colon: Path, tmp_path: Path) -> None:
     folder = write_poses_folder(small_colon, tmp_path / "02_poses", per_frame=100)
     out = tmp_path / "03_centerline"
@@ -245,8 +250,9 @@ def test_stage_run_writes_outputs(small_colon: Path, tmp_path: Path) -> None:
             input_digest="x",
             gt_dir=str(small_colon / "gt"),
         ),
-        inputs={"poses": folder},
-        resolve_view=lambda _name, f: PosesView(f),
+        inputs={"ingest": folder, "poses": folder},
+        # no sparse model in this folder: frame names are not needed (nearest-camera rays)
+        resolve_view=lambda name, f: PosesView(f) if name == "poses" else _NoNames(),
         console=Console(quiet=True),
         quiet=True,
     )

@@ -55,3 +55,36 @@ def test_view_reads_depth_opacity_and_metrics(tmp_path: Path) -> None:
     assert abs(read.sequence_scaled["scale"] - 2.0) < 1e-6
     assert read.median_scaled["abs_rel"] < 1e-6
     assert json.dumps(read.model_dump(mode="json", exclude_none=True), indent=2) == text
+
+
+def test_holes_show_in_a_colour_no_depth_or_error_has() -> None:
+    from endopipe.stages.depth.preview import (
+        DEPTH_CMAP,
+        ERROR_CMAP,
+        NO_DEPTH,
+        apply_cmap,
+        colourise,
+        label_panel,
+    )
+
+    gt = np.linspace(10, 40, 24 * 32, dtype=np.float32).reshape(24, 32)
+    depth = gt / 3
+    depth[8:12, 10:20] = 0.0  # a hole: the field found no surface here
+    inside = np.ones_like(gt, bool)
+    inside[:, :2] = False  # outside the scope's field of view
+    shown = colourise(depth, 3, 14, inside=inside)
+    assert (shown[8:12, 10:20] == NO_DEPTH).all()
+    assert (shown[:, :2] == 0).all()  # outside: black, not a hole
+    assert not (shown[12:, 2:] == NO_DEPTH).all(axis=-1).any()  # no depth pixel looks like one
+    for cmap in (DEPTH_CMAP, ERROR_CMAP):
+        every = apply_cmap(np.linspace(0, 1, 256)[None], cmap)[0].astype(float)
+        assert np.linalg.norm(every - np.array(NO_DEPTH), axis=1).min() > 60
+    errors = error_map(depth, gt, inside=inside)
+    assert (errors[8:12, 10:20] == NO_DEPTH).all() and (errors[:, :2] == 0).all()
+    assert (errors[12:, 2:] != NO_DEPTH).any(axis=-1).all()
+    legend = label_panel(shown, "depth, grey = no depth", (DEPTH_CMAP, "3", "14"))
+
+    def holes(img: np.ndarray) -> int:
+        return int((img == NO_DEPTH).all(axis=-1).sum())
+
+    assert holes(legend) > holes(shown)  # and the legend shows the hole's colour

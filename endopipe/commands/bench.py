@@ -16,6 +16,7 @@ from pydantic import BaseModel
 from endopipe.pipeline.config import load_config
 from endopipe.pipeline.errors import ConfigError, EndopipeError
 from endopipe.pipeline.runner import Pipeline
+from endopipe.stages.metrics.baselines import GUESSES
 
 #: name -> --set overrides. "plain" is a NeRF without the prior, the near-light model and the
 #: depth regularisers (and without the SfM-point depth): the paper's NeRF-endo baseline.
@@ -44,8 +45,15 @@ COLUMNS = (
     "rmse",
     "rmse_log",
     "delta1",
+    "coverage",
+    "radial_abs_rel",
+    "brightness_abs_rel",
+    "radial_delta1",
+    "brightness_delta1",
     "chamfer",
     "chamfer_pct_radius",
+    "off_seen_pct",
+    "prior",
     "psnr",
     "ssim",
     "registered",
@@ -179,6 +187,7 @@ def collect_row(
     summary = {k: (m.summary if m else {}) for k, m in manifests.items()}
     depth = summary.get("depth", {})
     med = depth.get("median_scaled") or {}
+    guesses = depth.get("baselines") or {}
     mesh = summary.get("mesh", {})
     poses = summary.get("poses", {})
     return {
@@ -186,8 +195,16 @@ def collect_row(
         "variant": variant,
         "error": error,
         **{k: med.get(k) for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "delta1")},
+        "coverage": med.get("coverage"),
+        **{
+            f"{name}_{k}": ((guesses.get(name) or {}).get("median_scaled") or {}).get(k)
+            for k in ("abs_rel", "delta1")
+            for name in GUESSES
+        },
         "chamfer": mesh.get("chamfer"),
         "chamfer_pct_radius": mesh.get("chamfer_pct_radius"),
+        "off_seen_pct": mesh.get("off_seen_pct"),
+        "prior": summary.get("centerline", {}).get("kind"),
         "psnr": depth.get("heldout_psnr"),
         "ssim": depth.get("heldout_ssim"),
         "registered": poses.get("registered_fraction"),
@@ -206,25 +223,65 @@ def write_csv(path: Path, rows: list[dict]) -> None:
 
 
 def markdown_table(rows: list[dict]) -> str:
-    """The paper's Table 1 shape, plus Chamfer, image metrics, timings and memory."""
+    """The paper's Table 1 shape, plus coverage, Chamfer, image metrics, timings and memory;
+    then ours beside the two guesses (`guesses_table`)."""
     head = (
-        "| case | variant | AbsRel | SqRel | RMSE | RMSElog | δ<1.25 | Chamfer | Chamfer %r "
-        "| PSNR | SSIM | registered | ATE % | depth ms | wall s | peak MB |"
+        "| case | variant | AbsRel | SqRel | RMSE | RMSElog | δ<1.25 | coverage | Chamfer "
+        "| Chamfer %r | off seen % | prior | PSNR | SSIM | registered | ATE % | depth ms "
+        "| wall s | peak MB |"
     )
-    lines = [head, "|" + "---|" * 16]
+    lines = [head, "|" + "---|" * 19]
     for r in rows:
-        cells = [r["case"], r["variant"] + (" (failed)" if r.get("error") else "")]
+        cells = [r["case"], _variant(r)]
         cells += [_fmt(r[k], 4) for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "delta1")]
+        cells += [_fmt(r.get("coverage"), 3)]
         cells += [_fmt(r["chamfer"], 3), _fmt(r["chamfer_pct_radius"], 2)]
+        cells += [_fmt(r.get("off_seen_pct"), 1), str(r.get("prior") or "–")]
         cells += [_fmt(r["psnr"], 2), _fmt(r["ssim"], 3), _fmt(r["registered"], 2)]
         cells += [_fmt(r["ate_pct"], 2), _fmt(r["depth_ms"], 0), _fmt(r["wall_s"], 0)]
         cells += [_fmt(r["peak_mb"], 0)]
         lines.append("| " + " | ".join(cells) + " |")
+    lines += ["", guesses_table(rows)]
     failed = [r for r in rows if r.get("error")]
     if failed:
         lines.append("")
         lines += [f"- {r['case']} / {r['variant']} failed: {r['error']}" for r in failed]
     return "\n".join(lines)
+
+
+def guesses_table(rows: list[dict]) -> str:
+    """Ours beside the radial and brightness guesses (stages.metrics.baselines), per-frame
+    median scaling on the same pixels; "no" under "beats both" when either guess has an
+    AbsRel at least as low as ours."""
+    lines = [
+        "Ours beside two guesses that look at no geometry (radial: the image centre is far; "
+        "brightness: depth = 1/√brightness), per-frame median scaling, on the pixels ours is "
+        "scored on:",
+        "",
+        "| case | variant | AbsRel ours | AbsRel radial | AbsRel brightness | δ<1.25 ours "
+        "| δ<1.25 radial | δ<1.25 brightness | beats both |",
+        "|" + "---|" * 9,
+    ]
+    for r in rows:
+        cells = [r["case"], _variant(r), _fmt(r.get("abs_rel"), 4)]
+        cells += [_fmt(r.get(f"{name}_abs_rel"), 4) for name in GUESSES]
+        cells += [_fmt(r.get("delta1"), 4)]
+        cells += [_fmt(r.get(f"{name}_delta1"), 4) for name in GUESSES]
+        cells.append(_beats(r))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _beats(row: dict) -> str:
+    ours = row.get("abs_rel")
+    theirs = [row.get(f"{name}_abs_rel") for name in GUESSES]
+    if ours is None or any(t is None for t in theirs):
+        return "–"
+    return "yes" if all(ours < t for t in theirs) else "**no**"
+
+
+def _variant(row: dict) -> str:
+    return row["variant"] + (" (failed)" if row.get("error") else "")
 
 
 def _fmt(value, digits: int) -> str:

@@ -12,8 +12,36 @@ from endopipe.pipeline.stage import StageConfig
 
 
 class CenterlineConfig(StageConfig):
-    prior: Literal["tube", "cavity"] = Field(
-        "tube", description="tube: a curve with a radius (colon); cavity: an ellipsoid (stomach)."
+    prior: Literal["auto", "tube", "cavity", "none"] = Field(
+        "auto",
+        description="auto: the candidate (tube or cavity) that predicts the SfM points' depths "
+        "best, or none when neither predicts min_fit of them; tube: a curve with a radius "
+        "(colon); cavity: an ellipsoid (stomach); none: no anatomical prior.",
+    )
+    fit_tolerance: float = Field(
+        0.25,
+        gt=0,
+        description="A camera-to-point ray agrees with a prior when the prior's wall is met "
+        "within this relative distance of the point.",
+    )
+    min_fit: float = Field(
+        0.5,
+        ge=0,
+        le=1,
+        description="auto: the share of agreeing rays a prior needs to be used. A prior's share "
+        "also scales L_prior's weight.",
+    )
+    reach_margin: float = Field(
+        1.25,
+        ge=1,
+        description="Rays reach this multiple of the farthest SfM points the cameras saw "
+        "(98th percentile per frame).",
+    )
+    free_scale: float = Field(
+        0.3,
+        gt=0,
+        description="prior none: the scene's length unit (the NeRF's grid and steps are sized in "
+        "it) as a fraction of the median camera-to-point distance.",
     )
     n_samples: int = Field(256, ge=16, le=4096, description="Samples of the output curve.")
     smoothing: float = Field(

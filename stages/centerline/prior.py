@@ -47,6 +47,10 @@ class LumenPrior:
 
     #: default cap of ray_bounds' far, in multiples of the (median) radius
     far_radii: float = 6.0
+    #: how much L_prior may say (the fit's share of SfM depths it explains; 0: no prior)
+    weight: float = 1.0
+    #: how far the cameras saw SfM points (world units); None: unknown
+    reach: float | None = None
 
     # --- interface ------------------------------------------------------------------------
     def signed_distance(self, x: Tensorish) -> torch.Tensor:
@@ -88,30 +92,46 @@ class LumenPrior:
     # --- persistence ----------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
         """Write `prior.npz`: kind, curve samples, radii, ellipsoid parameters."""
-        arrays = {"kind": np.array(self.kind), "far_radii": np.array(self.far_radii)}
+        arrays = {
+            "kind": np.array(self.kind),
+            "far_radii": np.array(self.far_radii),
+            "weight": np.array(self.weight),
+        }
+        if self.reach is not None:
+            arrays["reach"] = np.array(self.reach)
         arrays.update(self._arrays())
         with open(path, "wb") as fh:  # np.savez would append ".npz" to a path without it
             np.savez(fh, **arrays)
 
     @staticmethod
     def load(path: str | Path) -> LumenPrior:
-        """The prior stored in `prior.npz` (TubePrior or EllipsoidPrior)."""
+        """The prior stored in `prior.npz` (TubePrior, EllipsoidPrior or FreePrior)."""
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
         kind = str(data["kind"])
         far_radii = float(data.get("far_radii", 6.0))
+        prior: LumenPrior
         if kind == "tube":
-            return TubePrior(
+            prior = TubePrior(
                 data["points"],
                 data["radius"],
                 open_ends=bool(data.get("open_ends", True)),
                 far_radii=far_radii,
             )
-        if kind == "cavity":
-            return EllipsoidPrior(
+        elif kind == "cavity":
+            prior = EllipsoidPrior(
                 data["centre"], data["axes"], data["rotation"], far_radii=far_radii
             )
-        raise ValueError(f"{path}: unknown prior kind {kind!r}")
+        elif kind == "none":
+            prior = FreePrior(
+                data["centre"], float(data["scale"]), float(data["reach"]), float(data["depth"])
+            )
+        else:
+            raise ValueError(f"{path}: unknown prior kind {kind!r}")
+        prior.weight = float(data.get("weight", 1.0))
+        if "reach" in data:
+            prior.reach = float(data["reach"])
+        return prior
 
     def to(self, device: str | torch.device) -> LumenPrior:
         """Warm the buffers for `device` (queries move them on demand anyway)."""
@@ -624,3 +644,62 @@ class EllipsoidPrior(LumenPrior):
 
     def _arrays(self) -> dict[str, np.ndarray]:
         return {"centre": self.centre, "axes": self.axes, "rotation": self.rotation}
+
+
+class FreePrior(LumenPrior):
+    """No anatomical prior (`prior: none`, or `auto` when no shape fits the SfM points): no
+    wall, no core, rays bounded only by how far the cameras saw points (`reach`). It keeps the
+    prior's other job, the scene's length scale (`scale`, one scene unit), so the NeRF, the
+    baked surface and the mesh size their grids and steps the same way for every case."""
+
+    kind = "none"
+
+    def __init__(self, centre: Tensorish, scale: float, reach: float, depth: float) -> None:
+        self.centre = np.asarray(centre, np.float64).reshape(3)
+        self.scale = float(scale)
+        self.reach = float(reach)
+        self.depth = float(depth)  # median camera-to-point distance (the light's typical r)
+        self.weight = 0.0
+        self.far_radii = self.reach / max(self.scale, 1e-12)
+
+    @property
+    def typical_radius(self) -> float:
+        return self.scale
+
+    def _buffers(self, device: torch.device, dtype: torch.dtype) -> dict[str, torch.Tensor]:
+        return {}
+
+    def signed_distance(self, x: Tensorish) -> torch.Tensor:
+        """0 everywhere: every point is as near a possible wall as any other (a band around
+        the 'wall' is then all of space)."""
+        return torch.zeros(_as_tensor(x).shape[:-1])
+
+    def in_core(self, x: Tensorish, fraction: float = 0.5) -> torch.Tensor:
+        return torch.zeros(_as_tensor(x).shape[:-1], dtype=torch.bool)
+
+    def radius_at(self, x: Tensorish) -> torch.Tensor:
+        return torch.full(_as_tensor(x).shape[:-1], self.scale)
+
+    def ray_bounds(
+        self,
+        origins: Tensorish,
+        dirs: Tensorish,
+        margin: float = 0.25,
+        *,
+        max_far: float | None = None,
+        near_fraction: float = 0.05,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """near: `near_fraction` x scale; far: the reach (past every point the cameras saw)."""
+        o = _as_tensor(origins)
+        d = _as_tensor(dirs).to(device=o.device, dtype=o.dtype)
+        o, d = torch.broadcast_tensors(o, d)
+        dnorm = d.reshape(-1, 3).norm(dim=-1).clamp_min(1e-12)
+        far = torch.full_like(dnorm, self.reach)
+        return _near_far(near_fraction, torch.full_like(dnorm, self.scale), far, dnorm)
+
+    def _arrays(self) -> dict[str, np.ndarray]:
+        return {
+            "centre": self.centre,
+            "scale": np.array(self.scale),
+            "depth": np.array(self.depth),
+        }

@@ -19,9 +19,11 @@ import numpy as np
 from endopipe.pipeline.errors import StageFailed
 from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
 from endopipe.stages.centerline.cavity import fit_cavity
+from endopipe.stages.centerline.choose import PriorScore, choose_prior, point_reach
 from endopipe.stages.centerline.config import CenterlineConfig
 from endopipe.stages.centerline.evaluate import compare_to_truth
 from endopipe.stages.centerline.plot import plot_centerline
+from endopipe.stages.centerline.prior import FreePrior, LumenPrior
 from endopipe.stages.centerline.tube import fit_tube
 from endopipe.stages.centerline.view import (
     CENTERLINE_FILE,
@@ -29,13 +31,18 @@ from endopipe.stages.centerline.view import (
     PRIOR_FILE,
     CenterlineView,
 )
+from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.poses.view import PosesView
 
 __all__ = ["Centerline", "CenterlineConfig", "CenterlineSummary", "CenterlineView"]
 
 
 class CenterlineSummary(Summary):
-    kind: str
+    kind: str  # the prior the NeRF uses: tube | cavity | none
+    prior_reason: str = ""
+    prior_weight: float = 1.0
+    prior_scores: list[PriorScore] = []
+    reach: float | None = None
     length: float
     mean_radius: float
     radius_source: str
@@ -53,8 +60,8 @@ class Centerline(Stage):
     """Centre curve and radius of the lumen (or an ellipsoid cavity) as the NeRF's prior."""
 
     name = "centerline"
-    needs = ("poses",)
-    version = 2
+    needs = ("ingest", "poses")
+    version = 3
     Config = CenterlineConfig
 
     @classmethod
@@ -70,16 +77,42 @@ class Centerline(Stage):
         view_dirs = np.array([poses.c2w[i][:3, 2] for i in poses.registered]).reshape(-1, 3)
         points = poses.points()
         units = poses.file.units
-        fitter = fit_cavity if cfg.prior == "cavity" else fit_tube
-        fit = fitter(centres, view_dirs, points, cfg, metric=poses.metric)
+        fits = {
+            "tube": fit_tube(centres, view_dirs, points, cfg, metric=poses.metric),
+            "cavity": fit_cavity(centres, view_dirs, points, cfg, metric=poses.metric),
+        }
+        frames, origins, seen = observation_rays(ctx.input("ingest"), poses, points)
+        choice = choose_prior(
+            {k: f.prior(cfg.far_radii) for k, f in fits.items()},
+            origins,
+            seen,
+            cfg.fit_tolerance,
+            cfg.min_fit,
+            forced=None if cfg.prior == "auto" else cfg.prior,
+        )
+        ctx.log(f"prior: {choice.kind} ({choice.reason})")
+        # The file and plot show the best-fitting shape even when no prior is used.
+        best = max(choice.scores, key=lambda sc: sc.inlier_fraction).kind
+        fit = fits[choice.kind if choice.kind in fits else best]
         for note in fit.notes:
             ctx.log(note)
-        prior = fit.prior(cfg.far_radii)
+        c2w = {i: poses.c2w[i] for i in poses.registered}
+        seen_reach = point_reach(c2w, frames, seen, seen) if len(seen) else 0.0
+        reach = cfg.reach_margin * seen_reach if seen_reach > 0 else None
+        prior: LumenPrior
+        if choice.kind == "none":
+            dist = np.linalg.norm(seen - origins, axis=1) if len(seen) else np.ones(1)
+            depth = float(np.median(dist))
+            scale = cfg.free_scale * depth
+            prior = FreePrior(centres.mean(0), scale, reach or 12.0 * scale, depth)
+        else:
+            prior = fit.prior(cfg.far_radii)
+            prior.weight = choice.weight
+            prior.reach = reach
         prior.save(ctx.out / PRIOR_FILE)
-        write_json(
-            ctx.out / CENTERLINE_FILE,
-            fit.to_file(units).model_dump(mode="json", exclude_none=True),
-        )
+        file = fit.to_file(units).model_dump(mode="json", exclude_none=True)
+        file["kind"] = choice.kind
+        write_json(ctx.out / CENTERLINE_FILE, file)
 
         truth = None
         scores: dict[str, float] = {}
@@ -94,10 +127,14 @@ class Centerline(Stage):
                 scores = compare_to_truth(fit, *truth)
         plot_centerline(ctx.out / PLOT_FILE, fit, centres, points, units, truth)
         summary = CenterlineSummary(
-            kind=fit.kind,
+            kind=choice.kind,
+            prior_reason=choice.reason,
+            prior_weight=prior.weight,
+            prior_scores=choice.scores,
+            reach=reach,
             length=fit.length,
             mean_radius=prior.typical_radius
-            if fit.kind == "cavity"
+            if prior.kind != "tube"
             else float(np.mean(fit.radius)),
             radius_source=fit.radius_source,
             radius_note=fit.radius_note,
@@ -107,14 +144,39 @@ class Centerline(Stage):
             recentred_slices=fit.recentred_slices,
             **{k: v for k, v in scores.items() if k.startswith(("centerline_", "radius_"))},
         )
-        ctx.log(
-            f"{fit.kind}: length {fit.length:.1f} {units}, mean radius "
-            f"{summary.mean_radius:.2f} {units} ({fit.radius_note})"
-            + (
-                f"; vs truth: {scores['centerline_mean_dist_pct_of_radius']:.1f}% of radius, "
-                f"radius error {scores['radius_error_pct']:.1f}%"
-                if scores
-                else ""
+        if prior.kind == "none":
+            ctx.log(
+                f"no lumen prior: scene unit {prior.typical_radius:.2f} {units}, rays reach "
+                f"{prior.reach:.1f} {units}"
             )
-        )
+        else:
+            ctx.log(
+                f"{fit.kind}: length {fit.length:.1f} {units}, mean radius "
+                f"{summary.mean_radius:.2f} {units} ({fit.radius_note})"
+                + (
+                    f"; vs truth: {scores['centerline_mean_dist_pct_of_radius']:.1f}% of "
+                    f"radius, radius error {scores['radius_error_pct']:.1f}%"
+                    if scores
+                    else ""
+                )
+            )
         return summary
+
+
+def observation_rays(
+    ingest: IngestView, poses: PosesView, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frame, camera centre and point of every SfM observation (the sparse model's tracks);
+    without tracks, each point with its nearest camera."""
+    obs = poses.observations(ingest.index_by_name())
+    if obs is not None and len(obs.frame):
+        origins = np.array([poses.c2w[int(f)][:3, 3] for f in obs.frame])
+        return np.asarray(obs.frame), origins, np.asarray(obs.xyz, np.float64)
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    centres = poses.centres()
+    if len(pts) == 0 or len(centres) == 0:
+        return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))
+    from scipy.spatial import cKDTree
+
+    nearest = cKDTree(centres).query(pts)[1]
+    return np.asarray(poses.registered)[nearest], centres[nearest], pts

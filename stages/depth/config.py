@@ -24,6 +24,19 @@ class DepthConfig(StageConfig):
         description="Baked surface: density iso-level, per lumen radius (None: calibrated so "
         "that the baked surface passes through the field's rendered surface).",
     )
+    min_opacity: float = Field(
+        0.5,
+        gt=0,
+        le=1,
+        description="A ray whose rendered opacity is under this found no surface: its depth is "
+        "0 (unknown), not a guess.",
+    )
+    fill: bool = Field(
+        False,
+        description="Give rays that found no surface the depth where they leave the lumen "
+        "prior's wall instead of 0 (a guess from the prior, not an observation; the mesh never "
+        "fuses them: their opacity stays under min_opacity).",
+    )
     preview: bool = Field(True, description="Write preview.mp4 (RGB | depth | error).")
     preview_fps: int = Field(10, ge=1, description="Frame rate of preview.mp4.")
     colour: bool = Field(

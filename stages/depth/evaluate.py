@@ -1,6 +1,6 @@
 """The depth stage's evaluation (DESIGN §6): both depth protocols against the ground truth,
-which it reaches only through `open_ground_truth` / `depth_of_frame`, and PSNR / SSIM of
-the held-out frames."""
+which it reaches only through `open_ground_truth` / `depth_of_frame`, the same protocols for
+the two guesses of `metrics.baselines` beside ours, and PSNR / SSIM of the held-out frames."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import numpy as np
 
 from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.io.ground_truth import GroundTruthSource, depth_of_frame
+from endopipe.stages.metrics.baselines import brightness_guess, radial_guess
 from endopipe.stages.metrics.depth import (
     affine_sequence_metrics,
     depth_sequence_metrics,
@@ -33,15 +34,32 @@ def ground_truth_depths(
     return out
 
 
+def guesses(
+    ingest: IngestView, ids: list[int], inside: np.ndarray, principal: tuple[float, float]
+) -> dict[str, list[np.ndarray]]:
+    """The two guesses of `metrics.baselines` for frames `ids`, on the working grid."""
+    radial = radial_guess(ingest.height, ingest.width, *principal, inside)
+    return {
+        "radial": [radial] * len(ids),
+        "brightness": [brightness_guess(ingest.image(i)) for i in ids],
+    }
+
+
 def evaluate(
     gt: GroundTruthSource | None,
     ingest: IngestView,
     depths: dict[int, np.ndarray],
     gt_depths: dict[int, np.ndarray],
     rgbs: dict[int, np.ndarray],
+    principal: tuple[float, float] | None = None,
 ) -> dict:
     """DESIGN §6: both depth protocols per frame and mean; PSNR / SSIM on held-out frames.
-    The dict is metrics.json as written (`DepthMetrics` reads it back)."""
+    `baselines` holds the same protocol blocks (means, no per-frame list) for the radial and
+    brightness guesses, scored on exactly our pixels: where the ground truth is valid, inside
+    the field of view and ours has a depth, so a hole in ours is no easy pixel dropped for us
+    alone (their coverage is therefore ours). `principal` is the camera's (cx, cy) on the
+    working grid (the image centre when None). The dict is metrics.json as written
+    (`DepthMetrics` reads it back)."""
     metrics: dict = {}
     if gt_depths:
         fov = ingest.fov()
@@ -50,12 +68,21 @@ def evaluate(
         kind = getattr(gt, "kind", "exact")
         # A relative ground truth (an affine proxy of depth) supports no metric protocol.
         sequence = affine_sequence_metrics if kind == "relative" else depth_sequence_metrics
-        metrics.update(
-            sequence(
-                [depths[i] for i in ids], [gt_depths[i] for i in ids], [inside] * len(ids), ids
-            )
-        )
+        ours = [depths[i] for i in ids]
+        truth = [gt_depths[i] for i in ids]
+        masks = [inside] * len(ids)
+        metrics.update(sequence(ours, truth, masks, ids))
         metrics["gt_kind"] = kind
+        centre = principal or ((ingest.width - 1) / 2, (ingest.height - 1) / 2)
+        metrics["baselines"] = {}
+        for name, maps in guesses(ingest, ids, inside, centre).items():
+            same_pixels = [
+                np.where((d > 0) & np.isfinite(d), g, 0).astype(np.float32)
+                for d, g in zip(ours, maps, strict=True)
+            ]
+            scored = sequence(same_pixels, truth, masks, ids)
+            scored.pop("per_frame")
+            metrics["baselines"][name] = scored
     if rgbs:
         ids = sorted(rgbs)
         per = {
@@ -69,3 +96,10 @@ def evaluate(
         metrics["heldout_ssim"] = float(np.mean([p["ssim"] for p in per.values()]))
         metrics["per_frame_image"] = {str(i): per[i] for i in ids}
     return metrics
+
+
+def headline_coverage(metrics: dict) -> float | None:
+    """Ours' coverage for the stage summary: the median-scaled block's, or for a relative
+    ground truth the affine-invariant block's (the same pixels either way)."""
+    block = metrics.get("median_scaled") or metrics.get("affine_invariant") or {}
+    return block.get("coverage")

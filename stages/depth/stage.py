@@ -15,7 +15,7 @@ import numpy as np
 from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
 from endopipe.stages.centerline.view import CenterlineView
 from endopipe.stages.depth.config import DepthConfig
-from endopipe.stages.depth.evaluate import evaluate, ground_truth_depths
+from endopipe.stages.depth.evaluate import evaluate, ground_truth_depths, headline_coverage
 from endopipe.stages.depth.preview import write_preview
 from endopipe.stages.depth.view import (
     DEPTH_DIR,
@@ -45,6 +45,8 @@ class DepthSummary(Summary):
     median_scaled: dict | None = None
     sequence_scaled: dict | None = None
     affine_invariant: dict | None = None
+    coverage: float | None = None  # share of valid ground-truth pixels that got a depth
+    baselines: dict | None = None  # the guesses' protocol blocks (metrics.json `baselines`)
     heldout_psnr: float | None = None
     heldout_ssim: float | None = None
 
@@ -54,7 +56,7 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    version = 1
+    version = 2
     Config = DepthConfig
 
     @classmethod
@@ -93,7 +95,7 @@ class Depth(Stage):
         png_scale = write_depth_pngs(ctx.out / DEPTH_DIR, depths)
         gt = ingest.ground_truth()
         gt_depths = ground_truth_depths(gt, ingest, list(depths))
-        metrics = evaluate(gt, ingest, depths, gt_depths, rgbs)
+        metrics = evaluate(gt, ingest, depths, gt_depths, rgbs, principal=(k.cx, k.cy))
         write_json(ctx.out / METRICS_FILE, metrics)
         if cfg.preview:
             affine = metrics.get("gt_kind") == "relative"
@@ -122,17 +124,26 @@ class Depth(Stage):
             median_scaled=metrics.get("median_scaled"),
             sequence_scaled=metrics.get("sequence_scaled"),
             affine_invariant=metrics.get("affine_invariant"),
+            coverage=headline_coverage(metrics),
+            baselines=metrics.get("baselines"),
             heldout_psnr=metrics.get("heldout_psnr"),
             heldout_ssim=metrics.get("heldout_ssim"),
         )
 
 
 def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k):
-    """A function (intrinsics, c2w, frame, colour) -> {depth, opacity[, rgb]}."""
+    """A function (intrinsics, c2w, frame, colour) -> {depth, opacity[, rgb]}; depth is 0
+    where the ray found no surface (unless `fill`)."""
     from endopipe.stages.nerf.render import render_image
 
     if cfg.renderer == "field":
-        return lambda k, c2w, i, colour: render_image(model, prior, k, c2w, colour=colour)
+
+        def render_field(k, c2w, i, colour):
+            out = render_image(model, prior, k, c2w, colour=colour)
+            out["depth"] = np.where(out["opacity"] >= cfg.min_opacity, out["depth"], 0.0)
+            return out
+
+        return render_field
     from endopipe.stages.nerf.baked import BakedSurface
 
     baked = BakedSurface.bake(
@@ -140,7 +151,7 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k):
     )
 
     def render(k, c2w, i, colour):
-        out = baked.render_depth(k, c2w)
+        out = baked.render_depth(k, c2w, cfg.min_opacity, cfg.fill)
         if colour:  # colour needs the albedo field: render it exactly, only for held-out frames
             out["rgb"] = render_image(model, prior, k, c2w, colour=True)["rgb"]
         return out

@@ -33,6 +33,9 @@ class DepthMetrics(BaseModel):
     frames: int | None = None
     per_frame: list[dict] | None = None
     gt_kind: str | None = None  # "exact" | "pseudo" | "relative"
+    #: The radial and brightness guesses (stages.metrics.baselines), scored with the same
+    #: protocol blocks on the same pixels as ours: {"radial": {"median_scaled": {...}, ...}}.
+    baselines: dict[str, dict] | None = None
     heldout_frames: list[int] | None = None
     heldout_psnr: float | None = None
     heldout_ssim: float | None = None

@@ -24,6 +24,8 @@ if TYPE_CHECKING:
 #: Bands of the distance to the nearest camera centre, in lumen radii, for metrics.json's
 #: by_camera_distance (the last band is open).
 DISTANCE_BANDS_RADII = (0.0, 1.0, 1.5, 2.0, 3.0, float("inf"))
+#: mesh farther than this (in radii) from every GT surface a camera saw counts as made up
+OFF_SEEN_RADII = 0.1
 
 
 def case_ground_truth(gt_dir: Path | str | None) -> GroundTruthSource | None:
@@ -103,6 +105,7 @@ def evaluate_against_gt(
         n_samples=cfg.eval_samples,
         occlusion=cfg.eval_occlusion,
         distance_bands=[b * radius for b in DISTANCE_BANDS_RADII] if radius else None,
+        off_seen=OFF_SEEN_RADII * radius if radius else None,
     )
     for band in m.get("by_camera_distance", []):
         band["chamfer_pct_radius"] = (

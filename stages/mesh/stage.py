@@ -75,6 +75,7 @@ class MeshSummary(Summary):
     fscore: float | None = None
     threshold: float | None = None
     aligned: str | None = None
+    off_seen_pct: float | None = None
 
 
 def _finite(v: Any) -> Any:
@@ -93,7 +94,7 @@ class Mesh(Stage):
 
     name = "mesh"
     needs = ("ingest", "poses", "centerline", "nerf", "depth")
-    version = 1
+    version = 2
     Config = MeshConfig
 
     @classmethod
@@ -184,6 +185,7 @@ class Mesh(Stage):
         metrics = {k: _finite(v) for k, v in metrics.items()}
         save_metrics(ctx.out, metrics)
         keys = ("chamfer", "chamfer_pct_radius", "accuracy", "completeness", "fscore")
+        keys += ("off_seen_pct",)
         return MeshSummary(
             method=cfg.method,
             vertices=len(mesh.vertices),

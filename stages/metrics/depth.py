@@ -96,24 +96,49 @@ def depth_errors(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
     }
 
 
+def gt_pixels(gt: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """Pixels where the ground truth is valid (> 0, finite) and the mask set: what a
+    prediction is asked to cover."""
+    v = (gt > 0) & np.isfinite(gt)
+    return v & mask.astype(bool) if mask is not None else v
+
+
 def valid_depth_pixels(
     pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None
 ) -> np.ndarray:
     """Pixels where the ground truth is valid (> 0), the prediction positive, the mask set."""
-    v = (gt > 0) & np.isfinite(gt) & (pred > 0) & np.isfinite(pred)
-    return v & mask.astype(bool) if mask is not None else v
+    return gt_pixels(gt, mask) & (pred > 0) & np.isfinite(pred)
+
+
+def coverage(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Share of the valid ground-truth pixels inside the mask that got a depth (positive and
+    finite; 0 = no depth): every other metric is computed on these pixels only, so a map
+    with holes must say how much it left out. NaN when no pixel has ground truth."""
+    asked = gt_pixels(gt, mask)
+    n = int(asked.sum())
+    return float(valid_depth_pixels(pred, gt, mask).sum() / n) if n else float("nan")
+
+
+def _mean_coverage(rows: list[dict]) -> float:
+    """Mean coverage over the frames that have ground truth (a frame with no depth at all
+    counts as 0, not as missing)."""
+    values = [r["coverage"] for r in rows if np.isfinite(r.get("coverage", np.nan))]
+    return float(np.mean(values)) if values else float("nan")
 
 
 def depth_frame_metrics(
     pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None, scale: float | None = None
 ) -> dict[str, float]:
-    """One frame; `scale` None = per-frame median scaling, a number = that scale (1.0: as is)."""
+    """One frame; `scale` None = per-frame median scaling, a number = that scale (1.0: as is).
+    `valid` is the share of the image scored, `coverage` the share of the ground truth."""
     v = valid_depth_pixels(pred, gt, mask)
+    cover = coverage(pred, gt, mask)
     if not v.any():
-        return {k: float("nan") for k in DEPTH_KEYS} | {"scale": float("nan"), "valid": 0.0}
+        nan = float("nan")
+        return {k: nan for k in DEPTH_KEYS} | {"scale": nan, "valid": 0.0, "coverage": cover}
     p, g = pred[v], gt[v]
     s = float(np.median(g) / np.median(p)) if scale is None else float(scale)
-    return depth_errors(p * s, g) | {"scale": s, "valid": float(v.mean())}
+    return depth_errors(p * s, g) | {"scale": s, "valid": float(v.mean()), "coverage": cover}
 
 
 def depth_sequence_metrics(
@@ -125,7 +150,8 @@ def depth_sequence_metrics(
 ) -> dict:
     """Both protocols of DESIGN §6: per-frame median scaling, and one median-ratio scale for
     the whole sequence (stricter: it rewards a 3D-consistent reconstruction). Mean and per frame.
-    `unscaled` adds the depths as they are (meaningful when the poses are metric).
+    `unscaled` adds the depths as they are (meaningful when the poses are metric). Each block
+    carries `coverage` (see `coverage`); the error metrics are means over covered pixels.
     """
     masks = masks if masks is not None else [None] * len(preds)
     ids = ids if ids is not None else list(range(len(preds)))
@@ -150,7 +176,7 @@ def depth_sequence_metrics(
         rows = [f[protocol] for f in per_frame if f[protocol]["valid"] > 0]
         return {
             k: float(np.mean([r[k] for r in rows])) if rows else float("nan") for k in DEPTH_KEYS
-        }
+        } | {"coverage": _mean_coverage([f[protocol] for f in per_frame])}
 
     return {
         "median_scaled": mean("median_scaled"),
@@ -203,8 +229,9 @@ def affine_invariant_metrics(
 
     v = valid_depth_pixels(pred, gt, mask)
     n = int(v.sum())
+    cover = coverage(pred, gt, mask)
     if n < 10:
-        return {"abs_rel": float("nan"), "spearman": float("nan"), "valid": n}
+        return {"abs_rel": float("nan"), "spearman": float("nan"), "valid": n, "coverage": cover}
     p, g = pred[v].astype(np.float64), gt[v].astype(np.float64)
     scale, shift = affine_fit(p, g)
     aligned = scale * p + shift
@@ -214,6 +241,7 @@ def affine_invariant_metrics(
         "scale": float(scale),
         "shift": float(shift),
         "valid": n,
+        "coverage": cover,
     }
 
 
@@ -224,7 +252,7 @@ def affine_sequence_metrics(
     ids: list[int],
 ) -> dict:
     """Per-frame affine-invariant metrics and their means (frames with too few valid pixels
-    are left out of the means)."""
+    are left out of the means, but not out of the mean coverage)."""
     per_frame = [
         {"index": i, **affine_invariant_metrics(p, g, m)}
         for i, p, g, m in zip(ids, preds, gts, masks, strict=True)
@@ -233,5 +261,5 @@ def affine_sequence_metrics(
     mean = {
         k: float(np.mean([r[k] for r in rows])) if rows else float("nan")
         for k in ("abs_rel", "spearman")
-    }
+    } | {"coverage": _mean_coverage(per_frame)}
     return {"affine_invariant": mean, "frames": len(per_frame), "per_frame": per_frame}

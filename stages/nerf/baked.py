@@ -23,6 +23,7 @@ class BakedSurface:
     vertices: np.ndarray
     faces: np.ndarray
     prior: object | None = None
+    model: object | None = None  # the field, asked exactly about the rays the surface misses
 
     def __post_init__(self) -> None:
         from endopipe.stages.surface.raycast import raycasting_scene
@@ -52,7 +53,7 @@ class BakedSurface:
             calibrated = surface_density_level(model, prior, intrinsics, c2ws)
 
         # The surface is baked up to `reach_radii` lumen radii from each camera: further out the
-        # grid grows with the cube of the reach, and rays that miss take the prior's exit depth.
+        # grid grows with the cube of the reach, and rays that miss are volume-rendered exactly.
         radius = float(prior.typical_radius)
         depth_trunc = radius * reach_radii
         mesh, _ = density_mesh(
@@ -65,12 +66,16 @@ class BakedSurface:
             spacing=radius / voxels_per_radius,
             band=band,
         )
-        return cls(np.asarray(mesh.vertices), np.asarray(mesh.faces), prior)
+        return cls(np.asarray(mesh.vertices), np.asarray(mesh.faces), prior, model)
 
-    def render_depth(self, k: Camera, c2w: np.ndarray) -> dict[str, np.ndarray]:
-        """z-depth (H, W) in world units and opacity (1 where the baked surface is hit). A ray
-        that meets no baked surface (it runs down the lumen) takes the depth where it leaves
-        the prior's tube, with opacity 0, or 0 without a prior."""
+    def render_depth(
+        self, k: Camera, c2w: np.ndarray, min_opacity: float = 0.5, fill: bool = False
+    ) -> dict[str, np.ndarray]:
+        """z-depth (H, W) in world units and opacity. A ray that meets no baked surface (it runs
+        past the baked reach, e.g. down the lumen) is volume-rendered by the field itself; where
+        that finds no surface either (opacity under `min_opacity`) the depth is 0, unknown.
+        `fill` instead gives those rays the depth where they leave the prior's wall (a guess
+        from the prior, not an observation; nothing without a wall)."""
         import open3d as o3d
 
         dc = image_directions(k)  # camera z = 1, the lens's distortion undone
@@ -84,9 +89,46 @@ class BakedSurface:
             t = self._scene.cast_rays(rays)["t_hit"].numpy().reshape(k.height, k.width)
         hit = np.isfinite(t)
         depth = np.where(hit, t / norm, 0.0).astype(np.float32)  # ray length -> z-depth
-        if self.prior is not None and not hit.all():
-            miss = ~hit.reshape(-1)
-            dz = (dc.reshape(-1, 3)[miss]) @ np.asarray(c2w)[:3, :3].T  # camera z = 1
-            _, far = self.prior.ray_bounds(o[miss], dz)
-            depth.reshape(-1)[miss] = np.asarray(far, np.float32)
-        return {"depth": depth, "opacity": hit.astype(np.float32)}
+        opacity = hit.astype(np.float32)
+        miss = ~hit.reshape(-1)
+        if self.model is not None and miss.any():
+            z, op = self._render_missed(k, c2w, np.nonzero(miss)[0])
+            opacity.reshape(-1)[miss] = op
+            depth.reshape(-1)[miss] = np.where(op >= min_opacity, z, 0.0)
+        unknown = depth.reshape(-1) <= 0
+        if fill and self.prior is not None and getattr(self.prior, "kind", "") != "none":
+            if unknown.any():
+                dz = (dc.reshape(-1, 3)[unknown]) @ np.asarray(c2w)[:3, :3].T  # camera z = 1
+                _, far = self.prior.ray_bounds(o[unknown], dz)
+                depth.reshape(-1)[unknown] = np.asarray(far, np.float32)
+        return {"depth": depth, "opacity": opacity}
+
+    def _render_missed(
+        self, k: Camera, c2w: np.ndarray, pixels: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Expected z-depth (world) and opacity of the field along the rays of `pixels`."""
+        import torch
+
+        from endopipe.stages.camera import pixel_rays
+        from endopipe.stages.nerf.bounds import scene_bounds
+
+        model = self.model
+        dev = model.log_gain.device
+        c2w_s = torch.as_tensor(
+            model.box.c2w_to_scene(np.asarray(c2w)), dtype=torch.float32, device=dev
+        )
+        u = torch.as_tensor(pixels % k.width, dtype=torch.float32, device=dev)
+        v = torch.as_tensor(pixels // k.width, dtype=torch.float32, device=dev)
+        zs, ops = [], []
+        chunk = model.cfg.sampling.chunk
+        with torch.no_grad():
+            for a in range(0, len(pixels), chunk):
+                o, d = pixel_rays(k, c2w_s, u[a : a + chunk], v[a : a + chunk])
+                near, far = scene_bounds(model, self.prior, o, d)
+                out = model.render_rays(o, d, near, far, colour=False)
+                zs.append(out["depth"] * model.box.scale)
+                ops.append(out["opacity"])
+        return (
+            torch.cat(zs).float().cpu().numpy(),
+            torch.cat(ops).float().cpu().numpy(),
+        )

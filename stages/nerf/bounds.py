@@ -34,8 +34,15 @@ class PriorBounds:
             ow, dw, margin, max_far=self.max_far, near_fraction=self.cfg.sampling.near_fraction
         )
         near, far = near.to(o.dtype), far.to(o.dtype)
+        if self.prior.kind == "none":  # no wall: far is the reach of the SfM points
+            return near, torch.maximum(far, near * 1.5), torch.zeros_like(near, dtype=torch.bool)
         cap = self.max_far / dw.norm(dim=-1)
         return near, torch.maximum(far, near * 1.5), far < 0.999 * cap
+
+    def typical_distance(self) -> float | None:
+        """Without a wall, the median camera-to-point distance (scene units), else None."""
+        depth = getattr(self.prior, "depth", None)
+        return None if depth is None else float(depth) / self.box.scale
 
     def in_core(self, x: torch.Tensor, fraction: float) -> torch.Tensor:
         return self.prior.in_core(self.box.scene_to_world(x), fraction)

@@ -114,7 +114,8 @@ class FieldConfig(_Section):
 
 
 class ShadingConfig(_Section):
-    """Near-light model (seed §3.2): colour = albedo * (gain * max(n.l, 0) / r^2 + ambient)."""
+    """Near-light model (seed §3.2) and the scope's photometry:
+    colour = (F(theta) * albedo * (gain * max(n.l, 0) / r^2 + ambient) * exposure)^(1/gamma)."""
 
     enabled: bool = Field(
         True, description="Use the near-light shading; off: colour = albedo (plain NeRF)."
@@ -127,7 +128,29 @@ class ShadingConfig(_Section):
     )
     ambient: float = Field(0.02, ge=0, description="Initial ambient term (learned).")
     learn_gain: bool = Field(True, description="Learn the light gain (else keep the initial one).")
-    exposure: bool = Field(False, description="Learn a per-frame exposure (log gain).")
+    exposure: bool = Field(
+        False,
+        description="Learn a per-frame exposure (log gain, zero-mean over the training "
+        "frames); held-out frames have none and are rendered at the mean (0).",
+    )
+    falloff: Literal["none", "learned"] = Field(
+        "none",
+        description="Radial falloff F(theta) of the light and the lens (theta: a ray's angle "
+        "to the optical axis): none: F = 1 (the seed); learned: F = exp(sum_k a_k "
+        "(1 - cos theta)^k), k = 1..3, from a flat start. With the light at the camera the "
+        "emission profile and the vignetting are both functions of theta: one F models both.",
+    )
+    learn_gamma: bool = Field(
+        False,
+        description="Learn the camera response as a gamma (starting from `gamma`); off: "
+        "`gamma` is fixed.",
+    )
+    lr: float = Field(
+        0.01,
+        gt=0,
+        description="Learning rate of the falloff coefficients, the learned gamma and the "
+        "per-frame exposures.",
+    )
     normal_eps: float = Field(
         1.0, gt=0, description="Finite-difference step of the density gradient, in grid cells."
     )
@@ -326,4 +349,5 @@ PAPER_PRESET: dict = {
         "lambda_geo": 0.01,
         "sparse_weight": 0.0,
     },
+    "shading": {"falloff": "none", "learn_gamma": False, "exposure": False},
 }

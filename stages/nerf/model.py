@@ -7,7 +7,15 @@ Shading (seed §3.2) is deferred to the ray's expected surface point: the compos
 by gain * max(n.l, 0) / r^2 + ambient, with the light at the camera centre (l = -ray direction),
 r the distance to the expected surface and n the normalised negative density gradient there
 (central finite differences of `field.density`, so any encoding works and no double backward is
-needed). A per-frame exposure is optional. Frames are display-encoded: colour^(1/gamma).
+needed). Frames are display-encoded: colour^(1/gamma), gamma fixed or learned.
+
+The scope's photometry (each piece optional, `ShadingConfig`): a per-frame exposure (log gain,
+zero-mean over the training frames, so held-out frames, which have none, get the mean) and a
+radial falloff F(theta) = exp(sum_k a_k (1 - cos theta)^k) of the ray's angle theta to the
+optical axis. With the light at the camera centre and symmetric about the axis, the light's
+emission angle is theta too, so its angular profile and the lens's vignetting cannot be told
+apart: F is both. cos theta = 1 / |d|: every ray direction has camera-frame z = 1 with the lens
+undone (camera.rays.pixel_directions), and poses and the scene frame only rotate directions.
 """
 
 from __future__ import annotations
@@ -22,6 +30,13 @@ from endopipe.stages.nerf.field import RadianceField, make_field
 from endopipe.stages.nerf.sampling import coarse_then_fine, composite, spaced, two_pass
 from endopipe.stages.nerf.scene import SceneBox
 
+#: Terms of the radial falloff polynomial in (1 - cos theta).
+FALLOFF_TERMS = 3
+
+
+#: Entries of the state dict added after model.pt files were first written.
+NEW_KEYS = ("exposure_trained", "falloff", "log_gamma")
+
 
 class NerfModel(nn.Module):
     def __init__(self, cfg: NerfConfig, box: SceneBox, n_frames: int, gain: float = 1.0) -> None:
@@ -33,9 +48,22 @@ class NerfModel(nn.Module):
         amb = max(cfg.shading.ambient, 1e-6)
         self.ambient_raw = nn.Parameter(torch.tensor(math.log(math.expm1(amb))))
         self.exposure = nn.Parameter(torch.zeros(max(n_frames, 1)))
+        # Which frames' exposures are trained: the gauge (their mean is 0), set by the trainer.
+        self.register_buffer("exposure_trained", torch.ones(max(n_frames, 1)))
+        self.falloff = nn.Parameter(torch.zeros(FALLOFF_TERMS))  # a_k: F = 1 at the start
+        self.log_gamma = nn.Parameter(torch.tensor(math.log(cfg.shading.gamma)))
+
+    def set_trained_frames(self, frames: list[int]) -> None:
+        """Only these frames' exposures are fitted (and define their zero mean)."""
+        mask = torch.zeros_like(self.exposure_trained)
+        mask[torch.as_tensor(frames, dtype=torch.long)] = 1.0
+        self.exposure_trained.copy_(mask)
 
     def load_state_dict(self, state, strict: bool = True, assign: bool = False):  # type: ignore
-        """Also restores a TensoRF grid's resolution (it changes while training)."""
+        """Also restores a TensoRF grid's resolution (it changes while training); parameters
+        newer than the state dict (the photometric model) keep their initial values."""
+        own = super().state_dict()
+        state = {**{k: own[k] for k in NEW_KEYS if k not in state}, **state}
         res = state.get("field.res_now")
         if res is not None and hasattr(self.field, "set_resolution"):
             res = tuple(int(v) for v in res)
@@ -48,13 +76,39 @@ class NerfModel(nn.Module):
     # --- parameters -------------------------------------------------------------------------
     def param_groups(self, lr_grid: float, lr_mlp: float) -> list[dict]:
         groups = self.field.param_groups(lr_grid, lr_mlp)
+        sc = self.cfg.shading
         shade = [self.ambient_raw]
-        if self.cfg.shading.learn_gain:
+        if sc.learn_gain:
             shade.append(self.log_gain)
-        if self.cfg.shading.exposure:
-            shade.append(self.exposure)
         groups.append({"params": shade, "lr": lr_mlp, "name": "shading"})
+        photometric = [
+            p
+            for p, on in (
+                (self.exposure, sc.exposure),
+                (self.falloff, sc.falloff == "learned"),
+                (self.log_gamma, sc.learn_gamma),
+            )
+            if on
+        ]
+        if photometric:
+            groups.append({"params": photometric, "lr": sc.lr, "name": "photometric"})
         return groups
+
+    def photometry(self) -> dict[str, float | list[float]]:
+        """The fitted photometric model, for summaries: gamma, falloff a_k, F at 30 and 60
+        degrees off the axis, spread of the log exposures."""
+        sc = self.cfg.shading
+        with torch.no_grad():
+            out: dict[str, float | list[float]] = {"gamma": float(self.gamma())}
+            if sc.falloff == "learned":
+                out["falloff"] = [float(a) for a in self.falloff]
+                for deg in (30, 60):
+                    c = torch.tensor([math.cos(math.radians(deg))], device=self.falloff.device)
+                    out[f"falloff_{deg}deg"] = float(self.radial_falloff(c)[0])
+            if sc.exposure:
+                keep = self.exposure_trained > 0
+                out["exposure_std"] = float(self._exposure_centred()[keep].std(unbiased=False))
+            return out
 
     # --- geometry helpers ---------------------------------------------------------------------
     def to_grid(self, x: torch.Tensor) -> torch.Tensor:
@@ -169,6 +223,23 @@ class NerfModel(nn.Module):
             out["albedo"] = f
         return out
 
+    # --- photometry ---------------------------------------------------------------------------
+    def gamma(self) -> torch.Tensor | float:
+        return self.log_gamma.exp() if self.cfg.shading.learn_gamma else self.cfg.shading.gamma
+
+    def radial_falloff(self, cos_axis: torch.Tensor) -> torch.Tensor:
+        """F(theta) = exp(sum_k a_k (1 - cos theta)^k): the light's emission profile and the
+        lens's vignetting in one (both depend on theta alone, see the module docstring)."""
+        x = (1.0 - cos_axis.clamp(0.0, 1.0))[:, None]
+        powers = x ** torch.arange(1, FALLOFF_TERMS + 1, device=x.device, dtype=x.dtype)
+        return (powers * self.falloff).sum(-1).exp()
+
+    def _exposure_centred(self) -> torch.Tensor:
+        """Log exposures minus their mean over the trained frames; 0 for the others."""
+        w = self.exposure_trained
+        mean = (self.exposure * w).sum() / w.sum().clamp_min(1.0)
+        return (self.exposure - mean) * w
+
     def shade(self, out, albedo, d, dnorm, frame, mix: float) -> torch.Tensor:
         cfg = self.cfg.shading
         if not cfg.enabled:
@@ -182,7 +253,9 @@ class NerfModel(nn.Module):
                 cos = torch.ones_like(r)
             ambient = nn.functional.softplus(self.ambient_raw)
             light = self.log_gain.exp() * cos / r.square() + ambient
+            if cfg.falloff == "learned":
+                light = light * self.radial_falloff(1.0 / dnorm)  # cos theta = 1 / |d|
             lin = albedo * light[:, None]
             if cfg.exposure and frame is not None:
-                lin = lin * self.exposure[frame].exp()[:, None]
-        return lin.clamp_min(1e-4) ** (1.0 / self.cfg.shading.gamma)
+                lin = lin * self._exposure_centred()[frame].exp()[:, None]
+        return lin.clamp_min(1e-4) ** (1.0 / self.gamma())

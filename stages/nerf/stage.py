@@ -93,6 +93,23 @@ def load_sparse_depth(
     )
 
 
+def weigh_prior(cfg: NerfConfig, prior, log) -> NerfConfig:
+    """L_prior's weight scaled by how well the prior fits the SfM points (its `weight`, from
+    the centerline stage); off without a prior. The stage's recorded config is unchanged: the
+    scaling is a function of it and of the centerline stage's output."""
+    weight = float(getattr(prior, "weight", 1.0))
+    if not cfg.loss.prior or weight >= 1.0:
+        return cfg
+    loss = cfg.loss.model_copy(
+        update={"lambda_prior": cfg.loss.lambda_prior * weight, "prior": weight > 0}
+    )
+    log(
+        f"lumen prior {prior.kind}: L_prior weight x {weight:.2f}"
+        + (" (off)" if weight <= 0 else "")
+    )
+    return cfg.model_copy(update={"loss": loss})
+
+
 def build_frames(ingest, poses, device: torch.device):
     """Registered frames (endopipe order): images in [0, 1], usable masks, world c2w."""
     ids = [i for i in poses.registered if i < len(ingest.frames)]
@@ -147,6 +164,7 @@ class Nerf(Stage):
         device = pick_device(cfg.train.device)
         ingest, poses = ctx.input("ingest"), ctx.input("poses")
         prior = load_prior(ctx.input("centerline"))
+        cfg = weigh_prior(cfg, prior, ctx.log)
         ids, k, images, masks, c2w = build_frames(ingest, poses, device)
         box = fit_box(c2w, k, images.shape[1:3], prior, cfg)
         frames = FrameSet(

@@ -71,6 +71,8 @@ def initial_gain(frames: FrameSet, train: list[int], pb: PriorBounds, gamma: flo
     o, d = frames.rays(b.frame, b.u, b.v)
     _, far, has = pb.bounds(o, d, 0.0, wall=True)
     r = (far * d.norm(dim=-1))[has] if has.any() else far * d.norm(dim=-1)
+    if not has.any() and pb.typical_distance() is not None:  # no wall: the points' distance
+        r = torch.full_like(r, pb.typical_distance())
     lin = b.rgb.mean(-1).clamp_min(1e-3) ** gamma
     # albedo ~0.5 and an average cos ~0.7: gain / r^2 * 0.35 = intensity
     return float(torch.median(lin).item() * torch.median(r.square()).item() / 0.35)
@@ -99,6 +101,7 @@ class Trainer:
         self.pb = PriorBounds(prior, box, cfg)
         gain = initial_gain(frames, train, self.pb, cfg.shading.gamma, self.gen)
         self.model = NerfModel(cfg, box, frames.n, gain=gain).to(self.device)
+        self.model.set_trained_frames(train)
         self.sampler = RaySampler(
             frames, train, tc.batch_rays, cfg.loss.patch_size, cfg.loss.patch_fraction, self.gen
         )

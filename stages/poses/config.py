@@ -8,7 +8,16 @@ from pydantic import Field
 
 from endopipe.pipeline.stage import StageConfig
 
-CameraModelName = Literal["SIMPLE_RADIAL", "RADIAL", "SIMPLE_PINHOLE", "PINHOLE", "OPENCV"]
+CameraModelName = Literal[
+    "SIMPLE_RADIAL",
+    "RADIAL",
+    "SIMPLE_PINHOLE",
+    "PINHOLE",
+    "OPENCV",
+    "SIMPLE_RADIAL_FISHEYE",
+    "RADIAL_FISHEYE",
+    "OPENCV_FISHEYE",
+]
 
 
 class PosesConfig(StageConfig):

@@ -35,6 +35,7 @@ class PreviewRow:
     gt: np.ndarray | None
     error: np.ndarray | None  # abs-rel error, NaN where not evaluated
     scale: float | None
+    inside: np.ndarray | None = None  # the frame's mask (bool): where a depth is asked for
 
 
 def _figure(width: float, height: float):
@@ -170,6 +171,14 @@ def plot_per_frame(series: dict[str, tuple[list, list]], metric: str = "AbsRel")
     return figure_uri(fig)
 
 
+def _paint(ax, where: np.ndarray, rgb: tuple[float, float, float]) -> None:
+    """Cover the pixels `where` with one flat colour, over what the axes already show."""
+    if where.any():
+        overlay = np.zeros((*where.shape, 4), np.float32)
+        overlay[where] = (*rgb, 1.0)
+        ax.imshow(overlay, **NEAREST)
+
+
 def plot_depth_preview(rows: list[PreviewRow], units: str, error_max: float) -> str:
     from matplotlib import colormaps
 
@@ -178,9 +187,12 @@ def plot_depth_preview(rows: list[PreviewRow], units: str, error_max: float) -> 
     h, w = rows[0].depth.shape[:2]
     tile_w = 3.1
     fig = _figure(tile_w * ncols + 0.8, len(rows) * tile_w * h / w + 0.5)
-    from endopipe.stages.depth.preview import DEPTH_CMAP, ERROR_CMAP
+    from endopipe.stages.depth.preview import DEPTH_CMAP, ERROR_CMAP, NO_DEPTH
 
-    turbo = colormaps[DEPTH_CMAP].with_extremes(bad="black")  # as in preview.mp4: black = none
+    # as in preview.mp4: NO_DEPTH grey = a hole in ours, black = nothing asked (outside, no GT)
+    grey = tuple(c / 255 for c in NO_DEPTH)
+    turbo = colormaps[DEPTH_CMAP].with_extremes(bad=grey)
+    turbo_gt = colormaps[DEPTH_CMAP].with_extremes(bad="black")  # no truth is no hole of ours
     inferno = colormaps[ERROR_CMAP].with_extremes(bad="black")
     for r_i, row in enumerate(rows):
         valid = (row.depth > 0) & np.isfinite(row.depth)
@@ -199,14 +211,21 @@ def plot_depth_preview(rows: list[PreviewRow], units: str, error_max: float) -> 
         im = axes[1].imshow(
             np.ma.masked_where(~valid, row.depth), cmap=turbo, vmin=lo, vmax=hi, **NEAREST
         )
-        axes[1].set_title(label, fontsize=8)
+        inside = row.inside if row.inside is not None else np.ones_like(valid)
+        _paint(axes[1], ~inside, (0.0, 0.0, 0.0))
+        holes = 1 - (valid & inside).sum() / max(int(inside.sum()), 1)
+        axes[1].set_title(f"{label}\ngrey = no depth ({100 * holes:.0f}% of view)", fontsize=8)
         cb = fig.colorbar(im, ax=axes[1], fraction=0.046, pad=0.02)
         cb.ax.tick_params(labelsize=6)
         cb.set_label(units, fontsize=6)
         if has_gt:
             if row.gt is not None:
                 im = axes[2].imshow(
-                    np.ma.masked_where(row.gt <= 0, row.gt), cmap=turbo, vmin=lo, vmax=hi, **NEAREST
+                    np.ma.masked_where(row.gt <= 0, row.gt),
+                    cmap=turbo_gt,
+                    vmin=lo,
+                    vmax=hi,
+                    **NEAREST,
                 )
                 cb = fig.colorbar(im, ax=axes[2], fraction=0.046, pad=0.02)
                 cb.ax.tick_params(labelsize=6)
@@ -216,6 +235,8 @@ def plot_depth_preview(rows: list[PreviewRow], units: str, error_max: float) -> 
             if row.error is not None:
                 err = np.ma.masked_invalid(row.error)
                 im = axes[3].imshow(err, cmap=inferno, vmin=0, vmax=error_max, **NEAREST)
+                if row.gt is not None:
+                    _paint(axes[3], (row.gt > 0) & inside & ~valid, grey)
                 cb = fig.colorbar(im, ax=axes[3], fraction=0.046, pad=0.02)
                 cb.ax.tick_params(labelsize=6)
                 axes[3].set_title(f"abs-rel error (mean {np.nanmean(row.error):.3f})", fontsize=8)

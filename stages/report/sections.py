@@ -19,6 +19,7 @@ from endopipe.stages.report.figures import (
     plot_per_frame,
     plot_trajectory,
 )
+from endopipe.stages.report.guesses import comparison, verdicts
 from endopipe.stages.report.images import file_image_uri, image_uri, video_uri
 from endopipe.stages.report.kit import (
     badge,
@@ -56,6 +57,7 @@ DEPTH_METRICS = (
     ("delta2", "δ < 1.25²", True),
     ("delta3", "δ < 1.25³", True),
     ("spearman", "Spearman ρ", True),
+    ("coverage", "Coverage", True),
 )
 #: Protocol blocks of the depth stage's metrics.json (stages.metrics.depth).
 DEPTH_PROTOCOLS = (
@@ -137,6 +139,9 @@ def section_summary(data: CaseData, info: Any) -> str:
         cards.append(
             card("Depth rank corr.", fmt(am.get("spearman")), "Spearman ρ vs the relative GT")
         )
+    cover = _number(dm.get("coverage", am.get("coverage")))
+    if cover is not None:
+        cards.append(card("Depth coverage", f"{100 * cover:.0f}%", "of valid ground-truth pixels"))
     mm = data.mesh_metrics or {}
     chamfer, fscore = _number(mm.get("chamfer")), _number(mm.get("fscore"))
     if chamfer is not None:
@@ -196,6 +201,9 @@ def section_summary(data: CaseData, info: Any) -> str:
             '<p class="note">No ground truth: the page shows estimates and internal '
             "consistency only; no accuracy is claimed.</p>"
         )
+    honesty += "".join(
+        f'<p class="verdict"><b>{text(s)}</b></p>' for s in verdicts(data.depth_metrics or {})
+    )
     return f'<div class="cards">{"".join(cards)}</div>{honesty}{kv_table(rows)}'
 
 
@@ -359,12 +367,21 @@ def section_poses(data: CaseData, info: Any) -> str | None:
     cl = data.summary("centerline")
     if cl:
         u = str(cl.get("units", data.units))
+        kind = str(cl.get("kind", "—"))
         rows += [
-            ("Lumen model", text(cl.get("kind", "—"))),
-            ("Centre line length", fmt(cl.get("length"), u)),
-            ("Mean radius", fmt(cl.get("mean_radius"), u)),
-            ("Radius from", fmt(cl.get("radius_note") or cl.get("radius_source"))),
+            ("Lumen prior", text({"none": "none (no anatomical prior)"}.get(kind, kind))),
+            ("Why", text(cl.get("prior_reason") or "—")),
+            ("L_prior weight", fmt(cl.get("prior_weight"))),
+            ("Rays reach", fmt(cl.get("reach"), u)),
         ]
+        if kind != "none":
+            rows += [
+                ("Centre line length", fmt(cl.get("length"), u)),
+                ("Mean radius", fmt(cl.get("mean_radius"), u)),
+                ("Radius from", fmt(cl.get("radius_note") or cl.get("radius_source"))),
+            ]
+        else:
+            rows.append(("Scene unit", fmt(cl.get("mean_radius"), u)))
         if cl.get("centerline_mean_dist_pct_of_radius") is not None:
             rows += [
                 (
@@ -553,7 +570,7 @@ def preview_row(data: CaseData, index: int) -> PreviewRow:
         if valid.sum() > 10:
             error, scale, _ = scaled_error(depth, g, valid)
     shown = depth * scale if scale is not None else depth
-    return PreviewRow(index, src, rgb, shown, gt_depth, error, scale)
+    return PreviewRow(index, src, rgb, shown, gt_depth, error, scale, mask)
 
 
 def _shrink_row(row: PreviewRow, width: int) -> PreviewRow:
@@ -564,8 +581,16 @@ def _shrink_row(row: PreviewRow, width: int) -> PreviewRow:
         return None if a is None else cv2.resize(a, size, interpolation=cv2.INTER_NEAREST)
 
     rgb = None if row.rgb is None else cv2.resize(row.rgb, size, interpolation=cv2.INTER_AREA)
+    inside = None if row.inside is None else near(row.inside.astype(np.uint8)) > 0
     return PreviewRow(
-        row.index, row.source_index, rgb, near(row.depth), near(row.gt), near(row.error), row.scale
+        row.index,
+        row.source_index,
+        rgb,
+        near(row.depth),
+        near(row.gt),
+        near(row.error),
+        row.scale,
+        inside,
     )
 
 
@@ -592,12 +617,12 @@ def depth_previews(data: CaseData) -> str:
     if cfg.preview_width and rows[0].depth.shape[1] > cfg.preview_width:
         rows = [_shrink_row(r, cfg.preview_width) for r in rows]
     uri = plot_depth_preview(rows, data.units, cfg.error_max)
-    cap = "Depth previews: RGB | depth (turbo colour map, near = blue)"
+    cap = "Depth previews: RGB | depth (turbo colour map, near = blue; grey = no depth)"
     has_gt = any(r.gt is not None for r in rows)
     if has_gt:  # four columns
         cap += (
             " | ground truth (same colour scale) | abs-rel error after per-frame median "
-            f"scaling (0 to {cfg.error_max:g})"
+            f"scaling (0 to {cfg.error_max:g}; grey = ground truth but no depth)"
         )
     return figure_html(uri, cap + ".", "wide" if has_gt else "medium") + note
 
@@ -637,9 +662,12 @@ def section_depth(data: CaseData, info: Any) -> str | None:
             '<h3>Depth accuracy</h3><p class="note">Per frame, on pixels with valid ground '
             "truth, averaged over frames. <b>Per-frame median scaling</b> is the standard "
             "monocular protocol (Monodepth2 / Endo-SfM); <b>one scale for the sequence</b> is "
-            "stricter and rewards a 3D-consistent reconstruction.</p>"
+            "stricter and rewards a 3D-consistent reconstruction. <b>Coverage</b> is the share "
+            "of those pixels that got a depth; every other metric is computed on the covered "
+            "pixels only.</p>"
         )
         parts.append(depth_metric_table(dm, data.units))
+        parts.append(comparison(dm))
         if isinstance(dm.get("frames"), int):
             parts.append(f'<p class="note">{dm["frames"]} frame(s) evaluated.</p>')
         img_rows = []
@@ -699,7 +727,7 @@ MESH_SHOWN = {
     "sim3_scale", "mean_radius", "crop_max_depth", "crop", "eval_s", "method", "vertices",
     "faces", "raw_vertices", "raw_faces", "voxel_size", "sdf_trunc", "depth_trunc",
     "frames_used", "level", "band_nodes", "faces_extracted", "seen_fraction",
-    "components_removed", "units", "build_s", "clean_s",
+    "components_removed", "units", "build_s", "clean_s", "off_seen_pct", "off_seen_threshold",
 }  # fmt: skip
 METHODS = {
     "tsdf": "TSDF fusion of the depth maps",
@@ -738,8 +766,15 @@ def mesh_accuracy_rows(m: dict, u: str) -> list[Row]:
         ("F-score", fmt(_number(m.get("fscore"))), f"at {text(at)}"),
         ("Precision", fmt(_number(m.get("precision"))), f"share of the estimate within {text(at)}"),
         ("Recall", fmt(_number(m.get("recall"))), f"share of the truth within {text(at)}"),
+        (
+            "Off the seen surface",
+            fmt(_number(m.get("off_seen_pct")), "%"),
+            "share of the estimate farther than "
+            f"{fmt(_number(m.get('off_seen_threshold')), u)} from any true surface a camera saw "
+            "(made up or misplaced)",
+        ),
     ]
-    keys = ("chamfer", "accuracy", "completeness", "fscore", "precision", "recall")
+    keys = ("chamfer", "accuracy", "completeness", "fscore", "precision", "recall", "off_seen_pct")
     if not m.get("evaluated"):
         return []
     return [row for row, key in zip(rows, keys, strict=True) if _number(m.get(key)) is not None]

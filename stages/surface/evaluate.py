@@ -288,6 +288,7 @@ def evaluate_mesh(
     occlusion: bool = True,
     seed: int = 0,
     distance_bands: list[float] | None = None,
+    off_seen: float | None = None,
 ) -> dict[str, Any]:
     """Metrics of an estimated mesh against the part of the GT mesh the cameras could see.
 
@@ -297,6 +298,8 @@ def evaluate_mesh(
     Adds to `surface_metrics`: gt_area_seen (area of the GT surface in the crop), the share of
     GT samples kept, the number of points on each side, and with `distance_bands` (edges of
     the distance to the nearest camera centre) the metrics per band (`by_camera_distance`).
+    With `off_seen` (a distance), `off_seen_pct`: the % of the estimated surface farther than
+    it from any GT surface a camera saw (made up, or misplaced, rather than reconstructed).
     """
     gt_v = np.asarray(gt_vertices, np.float64)
     gt_f = np.asarray(gt_faces, np.int64).reshape(-1, 3)
@@ -322,6 +325,9 @@ def evaluate_mesh(
         gt_points=int(len(gt_pts)),
         est_points=int(len(est_pts)),
     )
+    if off_seen is not None and len(est_pts) and len(gt_pts):
+        off = nearest_distance(est_pts, gt_pts) > off_seen
+        out.update(off_seen_pct=100.0 * float(off.mean()), off_seen_threshold=float(off_seen))
     if distance_bands:
         centres = np.array([np.asarray(c, np.float64)[:3, 3] for c in c2ws])
         out["by_camera_distance"] = by_camera_distance(

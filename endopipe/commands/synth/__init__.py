@@ -2,7 +2,9 @@
 
 A seeded implicit anatomy (colon or cavity) is ray-cast exactly from a seeded camera path with a
 light at the camera; the case gets the video, lossless frames, intrinsics, z-depth, poses, mesh,
-specular masks and centre line. Units are millimetres throughout.
+specular masks and centre line. Units are millimetres throughout. The camera may have a distorted
+lens and vignetting (`lens.py`): each pixel's ray is its undistorted direction, so the depth
+stays exact on the frames' own pixel grid.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from endopipe.commands.synth.lens import LENSES, LensName, lens_camera, vignetting_gain
 from endopipe.commands.synth.raycast import FrameGeometry, MeshGuide, StepBound, trace, trace_frame
 from endopipe.commands.synth.render import Lighting, calibrate_exposure, shade
 from endopipe.commands.synth.scene import CavityScene, ColonScene, Scene
@@ -49,6 +52,24 @@ class SynthConfig(BaseModel):
         0.01, ge=0.0, le=0.5, description="Gaussian sensor noise std on 0..1 intensities."
     )
     specular: bool = Field(True, description="Add Blinn-Phong highlights of the camera's light.")
+    lens: LensName = Field(
+        "pinhole",
+        description="pinhole; barrel: OpenCV k1 -0.3, k2 0.06 (110 deg diagonal); fisheye: "
+        "OpenCV equidistant k1 -0.05, k2 0.01 (140 deg diagonal).",
+    )
+    fov_diag_deg: float | None = Field(
+        None,
+        gt=10.0,
+        lt=179.0,
+        description="Field of view across the image diagonal, deg; replaces fov_deg "
+        "(default: the lens's own; a pinhole keeps fov_deg).",
+    )
+    vignetting: float = Field(
+        0.0,
+        ge=0.0,
+        lt=1.0,
+        description="S of the linear gain 1 - S (r / r_corner)^2: corners get 1 - S of the light.",
+    )
 
     @field_validator("width", "height")
     @classmethod
@@ -68,17 +89,35 @@ class SynthSummary(BaseModel):
     seconds: float = Field(description="Wall time of the generation.")
 
 
+#: Fields added with lenses: left out of gt/synth.json at their defaults, so cases made without
+#: them keep their bytes.
+OPTICS_DEFAULTS = {"lens": "pinhole", "fov_diag_deg": None, "vignetting": 0.0}
+
+
 def intrinsics_for(cfg: SynthConfig) -> Camera:
-    """Square-pixel pinhole with the principal point at the image centre (pixel-centre coords)."""
-    fx = 0.5 * cfg.width / np.tan(np.radians(cfg.fov_deg) / 2.0)
-    return Camera(
-        width=cfg.width,
-        height=cfg.height,
-        fx=fx,
-        fy=fx,
-        cx=(cfg.width - 1) / 2.0,
-        cy=(cfg.height - 1) / 2.0,
-    )
+    """Square pixels, principal point at the image centre (pixel-centre coords), the lens."""
+    return lens_camera(cfg.width, cfg.height, cfg.lens, cfg.fov_deg, cfg.fov_diag_deg)
+
+
+def describe(cfg: SynthConfig, intr: Camera) -> dict:
+    """The config and, when used, the lens and vignetting, for gt/synth.json."""
+    unset = {k for k, v in OPTICS_DEFAULTS.items() if getattr(cfg, k) == v}
+    meta: dict = {"config": cfg.model_dump(exclude=unset)}
+    if cfg.lens != "pinhole" or cfg.fov_diag_deg is not None:
+        meta["lens"] = {
+            "name": cfg.lens,
+            "model": intr.model,
+            "dist": list(LENSES[cfg.lens].dist or []),
+            "fx": intr.fx,
+            "fov_diag_deg": cfg.fov_diag_deg or LENSES[cfg.lens].fov_diag_deg,
+        }
+    if cfg.vignetting:
+        meta["vignetting"] = {
+            "strength": cfg.vignetting,
+            "gain": "1 - strength * (r / r_corner)^2 on linear light, before the gamma; r from "
+            "the principal point (px), r_corner to the farthest outer image corner",
+        }
+    return meta
 
 
 def _streams(seed: int) -> dict[str, np.random.Generator]:
@@ -125,6 +164,7 @@ class Setup:
     texture: MucosaTexture
     intr: Camera
     light: Lighting
+    gain: np.ndarray | None = None  # (H, W) vignetting on linear light
 
     def trace(self, i: int, intr: Camera | None = None) -> FrameGeometry:
         return trace_frame(self.scene, self.bound, self.guide, intr or self.intr, self.poses[i])
@@ -139,7 +179,8 @@ def prepare(cfg: SynthConfig) -> Setup:
     guide = MeshGuide(scene, *scene.mesh()) if big else None
     texture = MucosaTexture(rng["texture"], cfg.texture_contrast)
     intr = intrinsics_for(cfg)
-    setup = Setup(scene, poses, bound, guide, texture, intr, Lighting(exposure=1.0))
+    gain = vignetting_gain(intr, cfg.vignetting)
+    setup = Setup(scene, poses, bound, guide, texture, intr, Lighting(exposure=1.0), gain)
     # Exposure from quarter-resolution previews of three frames, then fixed for the sequence.
     small = intr.scaled(max(cfg.width // 4, 8), max(cfg.height // 4, 8))
     probes = [setup.trace(i, small) for i in sorted({0, cfg.frames // 2, cfg.frames - 1})]
@@ -159,7 +200,7 @@ def _render_frames(
     for i in range(cfg.frames):
         geom = setup.trace(i)
         noise_rng = np.random.default_rng([cfg.seed, 7919, i])  # per frame: order-independent
-        rgb, spec = shade(geom, setup.texture, setup.light, cfg.noise_std, noise_rng)
+        rgb, spec = shade(geom, setup.texture, setup.light, cfg.noise_std, noise_rng, setup.gain)
         writer.add_frame(rgb, geom.depth, spec)
         lo.append(geom.points.min(0))
         hi.append(geom.points.max(0))
@@ -184,7 +225,7 @@ def generate_case(
         steps = np.linalg.norm(np.diff(setup.poses[:, :3, 3], axis=0), axis=1)
         meta = {
             "generator": "endopipe synth",
-            "config": cfg.model_dump(),
+            **describe(cfg, setup.intr),
             "exposure": setup.light.exposure,
             "specular_fraction": spec_frac,
             "camera_start": setup.poses[0][:3, 3].tolist(),

@@ -311,6 +311,7 @@ class FrameGeometry:
     cos: np.ndarray  # (M,) n . l, cosine between normal and direction to the light
     fx: float
     origin: np.ndarray  # (3,) camera centre (= light position)
+    pixel_angle: np.ndarray | None = None  # (M,) rad per pixel of a distorted lens; else 1 / fx
 
 
 @lru_cache(maxsize=4)
@@ -320,6 +321,17 @@ def _unit_directions(camera_json: str) -> tuple[np.ndarray, np.ndarray]:
     d = image_directions(Camera.model_validate_json(camera_json)).reshape(-1, 3)
     norm = np.linalg.norm(d, axis=1)
     return d / norm[:, None], 1.0 / norm
+
+
+@lru_cache(maxsize=4)
+def _pixel_angles(camera_json: str) -> np.ndarray:
+    """Angular size (rad) of every pixel (row-major): the square root of the solid angle its
+    unit directions span. A distorted lens squeezes the edges, where one pixel sees more."""
+    d, _ = _unit_directions(camera_json)
+    camera = Camera.model_validate_json(camera_json)
+    d = d.reshape(camera.height, camera.width, 3)
+    du, dv = np.gradient(d, axis=1), np.gradient(d, axis=0)
+    return np.sqrt(np.linalg.norm(np.cross(du, dv), axis=-1)).ravel()
 
 
 def camera_rays(intr: Camera, c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -458,4 +470,5 @@ def _geometry(
         cos=np.einsum("ij,ij->i", normals, -dv),
         fx=intr.fx,
         origin=origin,
+        pixel_angle=_pixel_angles(intr.model_dump_json())[valid] if intr.distorted else None,
     )

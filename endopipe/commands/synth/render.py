@@ -31,7 +31,8 @@ class Lighting:
 
 def _radiance(geom: FrameGeometry, texture: MucosaTexture, light: Lighting) -> tuple:
     """Linear albedo, diffuse and specular radiance (before exposure) at the hit points."""
-    footprint = geom.dist / geom.fx / np.maximum(np.abs(geom.cos), 0.25)
+    per_pixel = geom.dist / geom.fx if geom.pixel_angle is None else geom.dist * geom.pixel_angle
+    footprint = per_pixel / np.maximum(np.abs(geom.cos), 0.25)
     pts = columns(geom.points, F32)  # texture needs no float64 precision, and is 30x faster
     albedo = chunked(texture.albedo, *pts, footprint.astype(F32)).astype(np.float64)
     cos = np.clip(geom.cos, 0.0, None)
@@ -76,12 +77,16 @@ def shade(
     light: Lighting,
     noise_std: float,
     rng: np.random.Generator,
+    gain: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """8-bit sRGB-ish image and the mask of pixels where the specular reflection dominates
-    (specular radiance above the diffuse luminance, and bright: > 0.15 linear)."""
+    (specular radiance above the diffuse luminance, and bright: > 0.15 linear). `gain` (H, W)
+    scales the linear light at the sensor (vignetting); the mask is the scene's, without it."""
     h, w = geom.valid.shape
     albedo, diffuse, spec = _radiance(geom, texture, light)
     lin = light.exposure * (diffuse + spec[:, None]) + light.ambient * albedo
+    if gain is not None:
+        lin = lin * gain[geom.valid][:, None]
     spec_lin = light.exposure * spec
     dominant = (spec_lin > light.exposure * (diffuse * LUMA).sum(axis=1)) & (spec_lin > 0.15)
     img = np.zeros((h * w, 3))

@@ -52,7 +52,10 @@ class CaseWriter:
             shutil.rmtree(self.tmp)
         for sub in ("frames", "gt/depth", "gt/specular"):
             (self.tmp / sub).mkdir(parents=True)
-        self._write_json("intrinsics.json", intr.model_dump(exclude={"dist"}))
+        # intrinsics.json as stages/io reads it: `model` and `dist` for a distorted lens.
+        self._write_json(
+            "intrinsics.json", intr.model_dump(exclude=None if intr.distorted else {"dist"})
+        )
         self.intr = intr
         self.count = 0
         self._container = av.open(str(self.tmp / "video.mp4"), mode="w")

@@ -1,0 +1,136 @@
+"""Which lumen prior the evidence supports: tube, cavity or none (`prior: auto`).
+
+Why: a prior that does not fit the scene caps the rays short of the surface and pulls density
+to a wall that is not there (issue 14: on C3VD the tube's radius came from the 10% of the SfM
+points near the short camera path, and the rendered depth at the points was 0.54-0.63 of
+theirs). Each candidate is judged on ALL the SfM observations: the share of camera-to-point
+rays whose exit through its wall lies within `fit_tolerance` of the point. The best candidate
+is kept when that share reaches `min_fit`, and its share also scales L_prior's weight; below
+it, no prior (weight 0) and ray bounds from the points alone.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import BaseModel
+
+from endopipe.stages.centerline.prior import LumenPrior
+
+
+class PriorScore(BaseModel):
+    """How well one candidate prior predicts how far the cameras saw the SfM points."""
+
+    kind: str
+    inlier_fraction: float  # observations whose wall exit is within tolerance of the point
+    median_ratio: float  # median of (wall exit along the ray) / (point's distance)
+
+
+class PriorChoice(BaseModel):
+    """The prior used and why: what the summary and the report show."""
+
+    kind: str  # tube | cavity | none
+    forced: bool  # set by the config (tube / cavity), not chosen
+    weight: float  # multiplies L_prior (the fit's inlier fraction; 0 for none)
+    scores: list[PriorScore]
+    reason: str
+
+
+def score_prior(
+    prior: LumenPrior, origins: np.ndarray, points: np.ndarray, tolerance: float
+) -> PriorScore:
+    """Cast a ray from each camera centre through each point it observed: where the ray
+    leaves the prior's wall against where the point is. An observation is an inlier when the
+    ratio lies within [1 / (1 + tolerance), 1 + tolerance]. Judged along the rays (what
+    the NeRF's bounds and L_prior act on) and as a ratio, so candidates of any size compare
+    fairly."""
+    o = np.asarray(origins, np.float64).reshape(-1, 3)
+    x = np.asarray(points, np.float64).reshape(-1, 3)
+    dist = np.linalg.norm(x - o, axis=1)
+    ok = dist > 1e-9
+    if not ok.any():
+        return PriorScore(kind=prior.kind, inlier_fraction=0.0, median_ratio=float("nan"))
+    o, x, dist = o[ok], x[ok], dist[ok]
+    d = (x - o) / dist[:, None]
+    cap = 1e3 * float(dist.max())
+    _, far = prior.ray_bounds(o, d, margin=0.0, max_far=cap, near_fraction=1e-6)
+    ratio = far.double().numpy() / dist
+    band = np.log1p(tolerance)
+    return PriorScore(
+        kind=prior.kind,
+        inlier_fraction=float(np.mean(np.abs(np.log(np.maximum(ratio, 1e-9))) <= band)),
+        median_ratio=float(np.median(ratio)),
+    )
+
+
+def choose_prior(
+    candidates: dict[str, LumenPrior],
+    origins: np.ndarray,
+    points: np.ndarray,
+    tolerance: float,
+    min_fit: float,
+    forced: str | None = None,
+) -> PriorChoice:
+    """The candidate that explains most points, or none when the best explains fewer than
+    `min_fit` of them. `forced` (tube / cavity / none) is kept whatever the scores; a forced
+    tube or cavity weighs its fit (at least `min_fit`, so a forced prior keeps a say)."""
+    scores = [score_prior(p, origins, points, tolerance) for p in candidates.values()]
+    ranked = sorted(scores, key=lambda s: -s.inlier_fraction)
+    listing = ", ".join(
+        f"{s.kind} {100 * s.inlier_fraction:.0f}% of SfM depths within {100 * tolerance:.0f}%"
+        for s in ranked
+    )
+    if forced == "none":
+        return PriorChoice(
+            kind="none",
+            forced=True,
+            weight=0.0,
+            scores=scores,
+            reason=f"none set by the config ({listing})",
+        )
+    if forced is not None:
+        own = next(s for s in scores if s.kind == forced)
+        return PriorChoice(
+            kind=forced,
+            forced=True,
+            weight=max(own.inlier_fraction, min_fit),
+            scores=scores,
+            reason=f"{forced} set by the config ({listing})",
+        )
+    best = ranked[0] if ranked else None
+    if best is None or best.inlier_fraction < min_fit:
+        return PriorChoice(
+            kind="none",
+            forced=False,
+            weight=0.0,
+            scores=scores,
+            reason=f"no prior fits: {listing}; needed {100 * min_fit:.0f}%",
+        )
+    return PriorChoice(
+        kind=best.kind,
+        forced=False,
+        weight=best.inlier_fraction,
+        scores=scores,
+        reason=f"{best.kind} fits best: {listing}",
+    )
+
+
+def point_reach(
+    c2w: dict[int, np.ndarray],
+    frame_of_obs: np.ndarray | None,
+    xyz_of_obs: np.ndarray | None,
+    points: np.ndarray,
+    percentile: float = 98.0,
+) -> float:
+    """How far the cameras see: the largest per-frame `percentile` of the distance from a
+    camera to the points it observed (all points when no observations), in world units."""
+    reach = 0.0
+    for i, pose in c2w.items():
+        if frame_of_obs is not None and xyz_of_obs is not None:
+            seen = xyz_of_obs[frame_of_obs == i]
+        else:
+            seen = points
+        if len(seen) < 3:
+            continue
+        d = np.linalg.norm(np.asarray(seen) - np.asarray(pose)[:3, 3], axis=1)
+        reach = max(reach, float(np.percentile(d, percentile)))
+    return reach

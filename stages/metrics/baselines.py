@@ -1,0 +1,48 @@
+"""Two depth guesses that look at no geometry, scored beside ours so a number has a floor.
+
+A reconstruction that does not beat these has not reconstructed the scene; it has only
+rediscovered what every endoscopic frame looks like. Plain functions over arrays, no I/O;
+each returns a z-depth map that is positive everywhere (the scoring protocols remove the
+unknown scale, and for a relative ground truth the shift as well).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+#: The names the guesses are stored under in metrics.json (`baselines`), in display order.
+GUESSES = ("radial", "brightness")
+
+#: Gaussian blur of the brightness guess, as a fraction of the image diagonal: wide enough to
+#: wash out texture and specular speckle, narrow enough to keep the shading of folds.
+BLUR_OF_DIAGONAL = 0.01
+#: Added to the blurred grey level so black pixels give a large but finite depth.
+BRIGHTNESS_FLOOR = 1e-3
+
+
+def radial_guess(
+    height: int, width: int, cx: float, cy: float, inside: np.ndarray | None = None
+) -> np.ndarray:
+    """ "The image centre is far": depth = r_max - r + 1, with r the pixel distance to the
+    principal point (pixel-centre convention) and r_max the largest r inside the field of view
+    (`inside`, the whole image when None); clamped to 1 beyond r_max, outside the field of
+    view. Looks at no pixel's value."""
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    r = np.hypot(u - cx, v - cy)
+    r_max = float(r[inside.astype(bool)].max()) if inside is not None and inside.any() else r.max()
+    return np.maximum(r_max - r + 1.0, 1.0).astype(np.float32)
+
+
+def brightness_guess(rgb: np.ndarray, blur_of_diagonal: float = BLUR_OF_DIAGONAL) -> np.ndarray:
+    """Inverse-square shading (a light at the camera: I ~ 1/z², so z ~ 1/sqrt(I)): depth =
+    1/sqrt(blurred grey + BRIGHTNESS_FLOOR), grey the mean of the RGB channels in 0..1 (uint8
+    images are divided by 255), blurred with a Gaussian of sigma = `blur_of_diagonal` times
+    the image diagonal."""
+    img = np.asarray(rgb)
+    grey = img.astype(np.float32).mean(axis=-1) if img.ndim == 3 else img.astype(np.float32)
+    if np.issubdtype(img.dtype, np.integer):
+        grey /= 255.0
+    sigma = blur_of_diagonal * float(np.hypot(*grey.shape[:2]))
+    blurred = cv2.GaussianBlur(grey, (0, 0), sigmaX=sigma) if sigma > 0 else grey
+    return (1.0 / np.sqrt(np.clip(blurred, 0.0, None) + BRIGHTNESS_FLOOR)).astype(np.float32)

@@ -1,0 +1,137 @@
+"""centerline `prior: auto`: the prior is chosen from how well each candidate predicts the
+depth of the SfM points along the cameras' rays, and none is used when none predicts them.
+
+Inputs are analytic scenes with exact truth: a tube, an ellipsoid cavity, and a scene that is
+neither (a wavy sheet far ahead of a short camera path, like C3VD's view down a bending lumen).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from endopipe.stages.centerline.cavity import fit_cavity
+from endopipe.stages.centerline.choose import choose_prior, point_reach, score_prior
+from endopipe.stages.centerline.config import CenterlineConfig
+from endopipe.stages.centerline.prior import FreePrior, LumenPrior
+from endopipe.stages.centerline.tube import fit_tube
+from endopipe.stages.nerf.config import NerfConfig
+from endopipe.stages.nerf.stage import weigh_prior
+
+CFG = CenterlineConfig()
+
+
+def _observe(cams: np.ndarray, pts: np.ndarray, per_cam: int, rng) -> tuple:
+    """Each camera observes `per_cam` random points: (origins, points) of the observations."""
+    idx = rng.integers(0, len(pts), (len(cams), per_cam))
+    return np.repeat(cams, per_cam, 0), pts[idx.ravel()], np.repeat(np.arange(len(cams)), per_cam)
+
+
+def _candidates(cams, views, pts) -> dict[str, LumenPrior]:
+    return {
+        "tube": fit_tube(cams, views, pts, CFG).prior(),
+        "cavity": fit_cavity(cams, views, pts, CFG).prior(),
+    }
+
+
+def straight_tube(rng):
+    z = rng.uniform(5, 60, 4000)
+    phi = rng.uniform(0, 2 * np.pi, len(z))
+    pts = np.stack([10 * np.cos(phi), 10 * np.sin(phi), z], 1) + rng.normal(0, 0.2, (len(z), 3))
+    cams = np.stack([np.zeros(30), np.zeros(30), np.linspace(0, 30, 30)], 1)
+    views = np.tile([0.0, 0.0, 1.0], (30, 1))
+    return cams, views, pts
+
+
+def ellipsoid_cavity(rng):
+    d = rng.normal(size=(4000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    pts = d * np.array([40.0, 30.0, 25.0]) + rng.normal(0, 0.2, d.shape)
+    t = np.linspace(0, 1, 30)
+    cams = np.stack([-10 + 20 * t, 3 * np.sin(6 * t), np.zeros(30)], 1)
+    views = np.tile([1.0, 0.0, 0.0], (30, 1))
+    return cams, views, pts
+
+
+def neither(rng):
+    """A short path looking at a wavy sheet 60-100 units ahead (no wall around the cameras)."""
+    xy = rng.uniform(-60, 60, (4000, 2))
+    z = 80 + 20 * np.sin(xy[:, 0] / 15) * np.cos(xy[:, 1] / 20)
+    pts = np.concatenate([xy, z[:, None]], 1)
+    cams = np.stack([np.linspace(0, 3, 30), np.zeros(30), np.linspace(0, 5, 30)], 1)
+    views = np.tile([0.0, 0.0, 1.0], (30, 1))
+    return cams, views, pts
+
+
+def test_auto_picks_the_shape_that_predicts_the_points() -> None:
+    rng = np.random.default_rng(0)
+    for scene, want in ((straight_tube, "tube"), (ellipsoid_cavity, "cavity")):
+        cams, views, pts = scene(rng)
+        origins, seen, _ = _observe(cams, pts, 80, rng)
+        choice = choose_prior(_candidates(cams, views, pts), origins, seen, 0.25, 0.5)
+        fit = {s.kind: s.inlier_fraction for s in choice.scores}
+        assert choice.kind == want, choice.reason
+        assert fit[want] > 0.9, choice.reason
+        assert choice.weight == fit[want] and not choice.forced
+
+
+def test_auto_uses_no_prior_when_none_fits_and_a_forced_one_keeps_a_say() -> None:
+    rng = np.random.default_rng(1)
+    cams, views, pts = neither(rng)
+    origins, seen, _ = _observe(cams, pts, 80, rng)
+    cands = _candidates(cams, views, pts)
+    choice = choose_prior(cands, origins, seen, 0.25, 0.5)
+    assert choice.kind == "none" and choice.weight == 0.0, choice.reason
+    assert "no prior fits" in choice.reason
+    forced = choose_prior(cands, origins, seen, 0.25, 0.5, forced="tube")
+    assert forced.kind == "tube" and forced.forced and forced.weight == 0.5
+
+
+def test_score_is_the_ratio_of_wall_exit_to_point_distance() -> None:
+    """A tube of radius 10 seen from its axis: points on the wall score 1, points at twice the
+    distance score a median ratio of 0.5 and no inliers."""
+    rng = np.random.default_rng(2)
+    cams, views, pts = straight_tube(rng)
+    tube = _candidates(cams, views, pts)["tube"]
+    o = np.zeros((500, 3)) + np.array([0, 0, 10.0])
+    phi = rng.uniform(0, 2 * np.pi, 500)
+    wall = np.stack([10 * np.cos(phi), 10 * np.sin(phi), np.full(500, 25.0)], 1)
+    assert score_prior(tube, o, wall, 0.25).inlier_fraction > 0.95
+    far = o + 2 * (wall - o)
+    s = score_prior(tube, o, far, 0.25)
+    assert s.inlier_fraction < 0.05 and abs(s.median_ratio - 0.5) < 0.05
+
+
+def test_reach_is_per_frame_and_free_prior_rays_reach_it(tmp_path: Path) -> None:
+    c2w = {0: np.eye(4), 1: np.eye(4)}
+    c2w[1][:3, 3] = [0, 0, 50.0]
+    pts = np.array([[0, 0, d] for d in np.linspace(10, 100, 50)], float)
+    frames = np.array([0] * 25 + [1] * 25)
+    # frame 0 saw the near half (10-55), frame 1 the far half (56-100) from z=50: 6-50 away
+    reach = point_reach(c2w, frames, pts, pts, percentile=100)
+    assert abs(reach - 55.0) < 1.0
+    prior = FreePrior(np.zeros(3), 5.0, 1.25 * reach, 30.0)
+    d = torch.tensor([[0.0, 0.0, 2.0], [0.6, 0.0, 0.8]])
+    near, far = prior.ray_bounds(torch.zeros(2, 3), d, near_fraction=0.05)
+    np.testing.assert_allclose((far * d.norm(dim=-1)).numpy(), 1.25 * reach, rtol=1e-5)
+    assert (near * d.norm(dim=-1) < 1.0).all()
+    assert not prior.in_core(torch.zeros(4, 3)).any()
+    prior.save(tmp_path / "prior.npz")
+    back = LumenPrior.load(tmp_path / "prior.npz")
+    assert isinstance(back, FreePrior) and back.weight == 0.0
+    assert back.reach == prior.reach and back.depth == 30.0 and back.typical_radius == 5.0
+
+
+def test_prior_weight_scales_l_prior_and_zero_turns_it_off() -> None:
+    cfg = NerfConfig()
+    rng = np.random.default_rng(0)
+    cams, views, pts = straight_tube(rng)
+    tube = fit_tube(cams, views, pts, CFG).prior()
+    tube.weight = 0.5
+    half = weigh_prior(cfg, tube, lambda _m: None)
+    assert half.loss.lambda_prior == cfg.loss.lambda_prior * 0.5 and half.loss.prior
+    off = weigh_prior(cfg, FreePrior(np.zeros(3), 1.0, 10.0, 5.0), lambda _m: None)
+    assert not off.loss.prior
+    assert cfg.loss.prior and cfg.loss.lambda_prior == NerfConfig().loss.lambda_prior
