@@ -16,6 +16,9 @@ from endopipe.pipeline.errors import ConfigError
 def test_case_filter_and_unknown_case() -> None:
     assert [c.name for c in plan(False, ["cavity"]).cases] == ["cavity"]
     assert len(plan(False).cases) == 2 and plan(False).variants[0] == "full"
+    lens = plan(False, ["colon_barrel", "colon_barrel_est"]).cases
+    assert [c.lens for c in lens] == ["barrel", "barrel"]
+    assert [c.given_lens for c in lens] == [True, False]
     with pytest.raises(ConfigError, match="unknown bench case nope"):
         plan(False, ["nope"])
 

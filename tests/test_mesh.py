@@ -330,6 +330,7 @@ def test_stage_run_writes_mesh_and_metrics(synth_case, tmp_path):
     from endopipe.stages.centerline.view import CenterlineView
     from endopipe.stages.ingest.view import IngestView
     from endopipe.stages.io.ground_truth import GroundTruth
+    from endopipe.stages.nerf.view import NerfView
 
     poses, depth, _, radius = fake_inputs(synth_case, tmp_path)
     ingest = tmp_path / "01_ingest"
@@ -378,6 +379,7 @@ def test_stage_run_writes_mesh_and_metrics(synth_case, tmp_path):
         "poses": PosesView,
         "centerline": CenterlineView,
         "depth": DepthView,
+        "nerf": NerfView,
     }
     inputs = {
         "ingest": ingest,

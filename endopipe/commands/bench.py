@@ -71,6 +71,10 @@ class BenchCase(BaseModel):
     width: int
     height: int
     seed: int
+    lens: str = "pinhole"  # synth --lens
+    fov_diag: float | None = None  # synth --fov-diag
+    given_lens: bool = True  # False: intrinsics.json withheld, COLMAP estimates the camera
+    sets: list[str] = []  # applied to this case's runs (e.g. the COLMAP camera model)
 
 
 class BenchPlan(BaseModel):
@@ -85,6 +89,8 @@ def plan(
     """The bench's cases and variants; `cases` / `variants` keep only those names (a rerun of
     one row after a change need not pay for the whole table)."""
     full = _plan(quick)
+    if not cases:  # the lens cases run when named (--case colon_barrel ...)
+        full.cases = [c for c in full.cases if c.name in DEFAULT_CASES or quick]
     if cases:
         unknown = sorted(set(cases) - {c.name for c in full.cases})
         if unknown:
@@ -100,6 +106,10 @@ def plan(
     return full
 
 
+COLON = {"shape": "colon", "frames": 60, "width": 320, "height": 256, "seed": 7}
+DEFAULT_CASES = ("colon", "cavity")
+
+
 def _plan(quick: bool) -> BenchPlan:
     if quick:
         return BenchPlan(
@@ -113,6 +123,17 @@ def _plan(quick: bool) -> BenchPlan:
         cases=[
             BenchCase(name="colon", shape="colon", frames=60, width=320, height=256, seed=7),
             BenchCase(name="cavity", shape="cavity", frames=60, width=320, height=256, seed=7),
+            # issue 14's lens cases: the bench colon through a 110-degree barrel lens, given and
+            # estimated (OPENCV: the synth lens's own model), and its pinhole twin at 110 deg
+            BenchCase(**COLON, name="colon_wide", fov_diag=110.0),
+            BenchCase(**COLON, name="colon_barrel", lens="barrel"),
+            BenchCase(
+                **COLON,
+                name="colon_barrel_est",
+                lens="barrel",
+                given_lens=False,
+                sets=["poses.camera_model=OPENCV"],
+            ),
         ],
         variants=list(VARIANTS),
         sets=[],
@@ -131,29 +152,20 @@ def run_bench(
     """Run every case x variant; return one row per run (the table's rows). A run that fails
     is a row with its one-line error and whatever its fresh stages measured; the bench goes on.
     `on_row` gets the rows so far after each run (to write results as they come)."""
-    from endopipe.commands.synth import SynthConfig, generate_case
-
     rows: list[dict] = []
     for case in bench_plan.cases:
-        src = workdir / "inputs" / case.name
-        if not (src / "intrinsics.json").is_file():
-            console.print(f"[bold]synthesising[/bold] {case.name}")
-            generate_case(
-                src,
-                SynthConfig(
-                    seed=case.seed,
-                    frames=case.frames,
-                    width=case.width,
-                    height=case.height,
-                    shape=case.shape,
-                ),
-            )
-        prior = "cavity" if case.shape == "cavity" else "tube"
+        src = synth_input(workdir / "inputs", case, console)
+        source = src / "video.mp4"
+        if not case.given_lens:  # the same frames and truth, the camera left to COLMAP
+            source = workdir / "inputs" / case.name
+            source.mkdir(parents=True, exist_ok=True)
+            for part in ("video.mp4", "gt"):
+                if not (source / part).exists():
+                    (source / part).symlink_to((src / part).resolve())
         for variant in bench_plan.variants:
-            sets = [*bench_plan.sets, f"centerline.prior={prior}", *VARIANTS[variant]]
-            sets += extra_sets or []
+            sets = [*bench_plan.sets, *case.sets, *VARIANTS[variant], *(extra_sets or [])]
             configs = load_config(pipe.stages, [], sets)
-            case_dir = prepare_case(src / "video.mp4", workdir / "runs", case.name, None)
+            case_dir = prepare_case(source, workdir / "runs", case.name, None)
             console.print(f"[bold cyan]{case.name} / {variant}[/bold cyan]")
             t0 = time.perf_counter()
             error = None
@@ -168,6 +180,31 @@ def run_bench(
             if on_row is not None:
                 on_row(rows)
     return rows
+
+
+def synth_input(inputs: Path, case: BenchCase, console) -> Path:
+    """The case's synthetic input (written once; cases that differ only in what they are told
+    share it)."""
+    from endopipe.commands.synth import SynthConfig, generate_case
+
+    lens = "" if case.lens == "pinhole" else f"_{case.lens}"
+    fov = "" if case.fov_diag is None else f"_fov{case.fov_diag:g}"
+    src = inputs / f"{case.shape}_s{case.seed}_{case.frames}x{case.width}x{case.height}{lens}{fov}"
+    if not (src / "intrinsics.json").is_file():
+        console.print(f"[bold]synthesising[/bold] {src.name}")
+        generate_case(
+            src,
+            SynthConfig(
+                seed=case.seed,
+                frames=case.frames,
+                width=case.width,
+                height=case.height,
+                shape=case.shape,
+                lens=case.lens,
+                fov_diag_deg=case.fov_diag,
+            ),
+        )
+    return src
 
 
 def collect_row(

@@ -74,8 +74,9 @@ class Depth(Stage):
         k = poses.intrinsics
         if (k.width, k.height) != (ingest.width, ingest.height):
             k = k.scaled(ingest.width, ingest.height)
+        c2w = nerf.c2w(poses)  # the poses the field was fitted to (refined, when it refined)
         t_bake = time.perf_counter()
-        renderer = make_renderer(cfg, model, prior, [poses.c2w[i] for i in poses.registered], k)
+        renderer = make_renderer(cfg, model, prior, [c2w[i] for i in poses.registered], k)
         bake_s = time.perf_counter() - t_bake
         heldout = set(getattr(model, "meta", {}).get("heldout", []))
         for sub in (DEPTH_DIR, OPACITY_DIR):
@@ -84,7 +85,7 @@ class Depth(Stage):
         with ctx.progress("depth", total=len(poses.registered)) as advance:
             for i in poses.registered:
                 t0 = time.perf_counter()
-                out = renderer(k, poses.c2w[i], i, colour=cfg.colour and i in heldout)
+                out = renderer(k, c2w[i], i, colour=cfg.colour and i in heldout)
                 times.append(time.perf_counter() - t0)
                 depths[i] = out["depth"].astype(np.float32)
                 np.save(ctx.out / DEPTH_DIR / frame_file(i), depths[i])

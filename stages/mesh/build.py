@@ -28,12 +28,14 @@ def fuse_depth(
     cfg: MeshConfig,
     radius: float,
     image: Callable[[int], np.ndarray] | None = None,
+    c2w: dict[int, np.ndarray] | None = None,
 ) -> tuple[RawMesh, dict[str, float]]:
-    """TSDF mesh of 05_depth's maps at the poses of cameras.json: (mesh, info) where info has
-    voxel_size, sdf_trunc, depth_trunc and frames_used."""
+    """TSDF mesh of 05_depth's maps at the poses they were rendered at (`c2w`, from
+    NerfView.c2w; default: cameras.json's): (mesh, info) where info has voxel_size, sdf_trunc,
+    depth_trunc and frames_used."""
     voxel = cfg.voxel_size or radius / cfg.voxels_per_radius
     trunc = depth_trunc(depth, poses, cfg.depth_trunc, cfg.depth_trunc_percentile, cfg.min_opacity)
-    frames = iter_depth_frames(depth, poses, cfg.min_opacity, image if cfg.colour else None)
+    frames = iter_depth_frames(depth, poses, cfg.min_opacity, image if cfg.colour else None, c2w)
     sdf_trunc = cfg.sdf_trunc_voxels * voxel
     mesh, used = tsdf_fuse(
         frames, poses.intrinsics, voxel, sdf_trunc, trunc, cfg.colour, cfg.min_observations
@@ -64,7 +66,8 @@ def nerf_marching_cubes(
     trunc = depth_trunc(depth, poses, cfg.depth_trunc, cfg.depth_trunc_percentile, cfg.min_opacity)
     device = pick_device(cfg.device)
     model = nerf.model(device)
-    c2ws = [poses.c2w[i] for i in poses.registered]
+    fitted = nerf.c2w(poses)  # the poses the field was fitted to
+    c2ws = [fitted[i] for i in poses.registered]
     calibrated = None
     if cfg.density_level is None:
         calibrated = surface_density_level(model, prior, poses.intrinsics, c2ws)

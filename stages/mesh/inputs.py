@@ -33,9 +33,12 @@ def iter_depth_frames(
     poses: PosesView,
     min_opacity: float,
     image: Callable[[int], np.ndarray] | None = None,
+    c2w: dict[int, np.ndarray] | None = None,
 ) -> Iterator[DepthFrame]:
     """The registered frames that have a depth map, with colour from `image(index)` (RGB,
-    resized to the depth map's grid)."""
+    resized to the depth map's grid), at the poses `c2w` the depth maps were rendered at
+    (NerfView.c2w; default: cameras.json's)."""
+    c2w = poses.c2w if c2w is None else c2w
     import cv2
 
     for i in poses.registered:
@@ -47,7 +50,7 @@ def iter_depth_frames(
             rgb = image(i)
             if rgb.shape[:2] != d.shape:
                 rgb = cv2.resize(rgb, d.shape[::-1], interpolation=cv2.INTER_AREA)
-        yield DepthFrame(d, poses.c2w[i], rgb)
+        yield DepthFrame(d, c2w[i], rgb)
 
 
 def auto_depth_trunc(depths: Iterable[np.ndarray], percentile: float) -> float:

@@ -114,7 +114,8 @@ class Mesh(Stage):
 
         t0 = time.perf_counter()
         if cfg.method == "tsdf":
-            raw, info = fuse_depth(depth, poses, cfg, radius, ingest.image)
+            c2w = ctx.input("nerf").c2w(poses)  # the poses the depth maps were rendered at
+            raw, info = fuse_depth(depth, poses, cfg, radius, ingest.image, c2w)
         else:
             raw, info = nerf_marching_cubes(ctx.input("nerf"), depth, poses, prior, cfg)
         build_s = time.perf_counter() - t0

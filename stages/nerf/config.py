@@ -325,12 +325,60 @@ class TrainConfig(_Section):
     )
 
 
+class PoseRefineConfig(_Section):
+    """Joint refinement of the camera poses with the field: a per-frame SE(3) correction in the
+    camera's own frame, c2w @ exp(delta) (see pose_refine.py)."""
+
+    mode: Literal["auto", "on", "off"] = Field(
+        "auto",
+        description="auto: on when the poses come from COLMAP SfM (poses.source=colmap), off "
+        "for ground-truth or file poses; on / off: always / never.",
+    )
+    lr: float = Field(
+        1e-3,
+        ge=0,
+        description="Adam learning rate of the corrections (radians and lumen radii); it "
+        "decays with the others.",
+    )
+    start: float = Field(
+        0.1,
+        ge=0,
+        lt=1,
+        description="Fraction of training on the given poses before they move: the coarse "
+        "field settles first (the grid's upsampling is the coarse to fine).",
+    )
+    warmup: float = Field(
+        0.1,
+        ge=0,
+        le=1,
+        description="Fraction of training over which the learning rate ramps up from start.",
+    )
+    l2: float = Field(
+        1e-3,
+        ge=0,
+        description="Weight of the mean squared correction: keeps the poses near the given ones "
+        "where the images say little.",
+    )
+    heldout_steps: int = Field(
+        100,
+        ge=0,
+        description="After training, steps fitting only the held-out frames' corrections, the "
+        "field frozen, so held-out PSNR measures the field, not the pose error (0: off).",
+    )
+    heldout_rays: int = Field(
+        512, ge=16, description="Rays per held-out refinement step (spread over the frames)."
+    )
+
+
 class NerfConfig(StageConfig):
     field: FieldConfig = Field(default_factory=FieldConfig, description="The radiance field.")
     shading: ShadingConfig = Field(default_factory=ShadingConfig, description="Near-light model.")
     sampling: SamplingConfig = Field(default_factory=SamplingConfig, description="Ray sampling.")
     loss: LossConfig = Field(default_factory=LossConfig, description="Loss terms and weights.")
     train: TrainConfig = Field(default_factory=TrainConfig, description="Training.")
+    pose_refine: PoseRefineConfig = Field(
+        default_factory=PoseRefineConfig, description="Joint camera pose refinement."
+    )
 
 
 #: The seed's exact settings (§4.3): configs/paper.yaml holds the same keys under `nerf:`.
@@ -350,4 +398,5 @@ PAPER_PRESET: dict = {
         "sparse_weight": 0.0,
     },
     "shading": {"falloff": "none", "learn_gamma": False, "exposure": False},
+    "pose_refine": {"mode": "off"},
 }

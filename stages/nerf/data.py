@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from endopipe.stages.camera import Camera, direction_table, pixel_rays
+
+if TYPE_CHECKING:
+    from endopipe.stages.nerf.pose_refine import PoseCorrection
 
 
 def holdout_split(indices: list[int], every: int) -> tuple[list[int], list[int]]:
@@ -57,10 +61,20 @@ class FrameSet:
                 f"camera is {camera.width}x{camera.height}, frames are {self.w}x{self.h}"
             )
         self._directions = direction_table(camera, device)  # distorted lenses only
+        # Learnt pose corrections (pose_refine.py), applied while `refining`; None: poses as given.
+        self.correction: PoseCorrection | None = None
+        self.refining = False
+
+    def pose(self, frame: torch.Tensor) -> torch.Tensor:
+        """Scene-frame c2w of frames ((B,) -> (B, 4, 4)): the given pose, corrected while
+        refining (with gradients to the corrections)."""
+        if self.correction is None or not self.refining:
+            return self.c2w[frame]
+        return self.correction.apply(self.c2w)[frame]
 
     def rays(self, frame: torch.Tensor, u: torch.Tensor, v: torch.Tensor):
         """Scene-frame rays (origins, directions with camera z = 1) through pixels of frames."""
-        return self.pixel_rays(self.c2w[frame], u, v)
+        return self.pixel_rays(self.pose(frame), u, v)
 
     def pixel_rays(self, c2w: torch.Tensor, u: torch.Tensor, v: torch.Tensor):
         """Rays of this camera at scene-frame poses c2w ((4, 4) or (B, 4, 4))."""

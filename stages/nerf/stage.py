@@ -24,6 +24,7 @@ from endopipe.stages.nerf import losses
 from endopipe.stages.nerf.bounds import PriorBounds
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.data import FrameSet, holdout_split
+from endopipe.stages.nerf.pose_refine import record, refinement_wanted
 from endopipe.stages.nerf.render import MODEL_FILE, render_image, save_model
 from endopipe.stages.nerf.scene import SceneBox
 from endopipe.stages.nerf.sparse_depth import sparse_depth_targets
@@ -136,6 +137,7 @@ class NerfSummary(Summary):
     resumed_from: int = 0
     device: str = "cpu"
     threads: int = 1
+    pose_refine: dict | None = None  # ran, how far the cameras moved (pose_refine.record)
 
 
 class Nerf(Stage):
@@ -177,8 +179,9 @@ class Nerf(Stage):
             train_pos = {i: pos[i] for i in train_ids}
             sparse = load_sparse_depth(ingest, poses, train_pos, box, cfg, device)
             ctx.log(f"sparse depth: {len(sparse) if sparse else 0} SfM-point rays")
+        refine = refinement_wanted(cfg.pose_refine.mode, poses.file.source)
         trainer = Trainer(
-            cfg, frames, [pos[i] for i in train_ids], prior, box, ctx.out, ctx.log, sparse
+            cfg, frames, [pos[i] for i in train_ids], prior, box, ctx.out, ctx.log, sparse, refine
         )
         resumed = trainer.try_resume()
         start = trainer.step_i
@@ -187,16 +190,25 @@ class Nerf(Stage):
         with ctx.progress("nerf", total=cfg.train.steps) as advance:
             trainer.fit(advance)
         trainer.save_checkpoint()  # a crash while evaluating resumes here, not steps back
+        held_refined = trainer.refine_heldout([pos[i] for i in held_ids])
+        c2w_used = trainer.world_poses(c2w)  # refined (world frame) when refinement ran
+        pose_summary = record(ctx.out, ids, held_ids, c2w, c2w_used, refine, held_refined)
         trainer.write_log(ctx.out / "train_log.csv")
         plot_log(trainer.rows, ctx.out / "loss.png")
         save_model(
             ctx.out / MODEL_FILE,
             trainer.model,
-            {"frame_ids": ids, "train": train_ids, "heldout": held_ids, "units": poses.file.units},
+            {
+                "frame_ids": ids,
+                "train": train_ids,
+                "heldout": held_ids,
+                "units": poses.file.units,
+                "pose_refine": refine,
+            },
         )
         model = trainer.model.eval()
         rays_per_s = cfg.train.batch_rays * trainer.step_i / max(trainer.elapsed, 1e-9)
-        evaluation = evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg, ctx)
+        evaluation = evaluate(model, prior, ingest, k, c2w_used, ids, held_ids, cfg, ctx)
         (ctx.out / CHECKPOINT).unlink(missing_ok=True)
         write_json(ctx.out / "metrics.json", evaluation)
         return NerfSummary(
@@ -211,6 +223,7 @@ class Nerf(Stage):
             resumed_from=start,
             device=str(device),
             threads=torch.get_num_threads(),
+            pose_refine=pose_summary,
         )
 
 

@@ -1,5 +1,6 @@
 """The training loop: Adam with per-group learning rates and exponential decay, the loss terms,
-atomic checkpoints every N steps and resumption from them (the step count goes on)."""
+atomic checkpoints every N steps and resumption from them (the step count goes on), and the
+joint pose refinement (pose_refine.py) of the training frames, then of the held-out ones."""
 
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from endopipe.stages.nerf.bounds import PriorBounds
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.data import FrameSet, RaySampler, neighbours
 from endopipe.stages.nerf.model import NerfModel
+from endopipe.stages.nerf.pose_refine import PoseCorrection, corrected_world, lr_factor
 from endopipe.stages.nerf.scene import SceneBox
 from endopipe.stages.nerf.sparse_depth import SparseDepth
 
@@ -35,6 +37,9 @@ LOG_FIELDS = [
     "geo",
     "distortion",
     "sparse",
+    "pose_reg",
+    "pose_deg",
+    "pose_move",
     "psnr",
     "rays_per_s",
     "lr_grid",
@@ -89,6 +94,7 @@ class Trainer:
         out_dir: Path,
         log: Callable[[str], None] = print,
         sparse: SparseDepth | None = None,
+        refine_poses: bool = False,
     ) -> None:
         self.cfg, self.frames, self.train_pos, self.box = cfg, frames, train, box
         self.sparse = sparse
@@ -102,6 +108,12 @@ class Trainer:
         gain = initial_gain(frames, train, self.pb, cfg.shading.gamma, self.gen)
         self.model = NerfModel(cfg, box, frames.n, gain=gain).to(self.device)
         self.model.set_trained_frames(train)
+        # Pose corrections of every frame (held-out ones are fitted after training).
+        self.correction: PoseCorrection | None = None
+        if refine_poses:
+            self.correction = PoseCorrection(frames.n, gauge=train).to(self.device)
+        frames.correction, frames.refining = self.correction, False
+        self._train_t = torch.as_tensor(train, dtype=torch.long, device=self.device)
         self.sampler = RaySampler(
             frames, train, tc.batch_rays, cfg.loss.patch_size, cfg.loss.patch_fraction, self.gen
         )
@@ -119,6 +131,9 @@ class Trainer:
     def _build_optimizer(self) -> None:
         tc = self.cfg.train
         groups = self.model.param_groups(tc.lr_grid, tc.lr_mlp)
+        if self.correction is not None:  # last: param_groups[0] stays the grid's
+            lr = self.cfg.pose_refine.lr
+            groups.append({"params": [self.correction.delta], "lr": lr, "name": "poses"})
         for g in groups:
             g["base_lr"] = g["lr"]
         try:  # the fused kernel is ~10x faster on a CPU for the grid's millions of entries
@@ -139,8 +154,11 @@ class Trainer:
 
     def _set_lr(self) -> None:
         f = self.cfg.train.lr_decay**self.progress
+        pc = self.cfg.pose_refine
         for g in self.opt.param_groups:
             g["lr"] = g["base_lr"] * f
+            if g.get("name") == "poses":
+                g["lr"] *= lr_factor(self.progress, pc.start, pc.warmup)
 
     # --- checkpoints --------------------------------------------------------------------------
     @property
@@ -157,6 +175,8 @@ class Trainer:
             "torch_rng": torch.get_rng_state(),
             "rows": self.rows,
         }
+        if self.correction is not None:
+            state["poses"] = self.correction.state_dict()
         self.out_dir.mkdir(parents=True, exist_ok=True)
         tmp = self.ckpt_path.with_suffix(".pt.tmp")
         torch.save(state, tmp)
@@ -171,6 +191,8 @@ class Trainer:
             self.log(f"checkpoint unreadable ({type(e).__name__}); starting from scratch")
             return False
         self.model.load_state_dict(state["model"])
+        if self.correction is not None and "poses" in state:
+            self.correction.load_state_dict(state["poses"])
         self._build_optimizer()
         self.opt.load_state_dict(state["opt"])
         for g in self.opt.param_groups:  # base_lr is part of the saved groups
@@ -190,6 +212,8 @@ class Trainer:
         if self.model.field.on_progress(progress):
             self.model.to(self.device)
             self._build_optimizer()
+        # Poses move once the coarse field has settled (before that: the given rays, exactly).
+        self.frames.refining = self.correction is not None and (progress >= cfg.pose_refine.start)
         b = self.sampler.sample()
         o, d = self.frames.rays(b.frame, b.u, b.v)
         near, far, _ = self.pb.bounds(o, d, cfg.sampling.bounds_margin)
@@ -258,6 +282,10 @@ class Trainer:
         if lc.distortion_weight > 0:
             terms["distortion"] = losses.distortion(out["t"], out["weights"], far)
             loss = loss + lc.distortion_weight * terms["distortion"]
+        if self.frames.refining and cfg.pose_refine.l2 > 0:
+            assert self.correction is not None
+            terms["pose_reg"] = self.correction.penalty(self._train_t)
+            loss = loss + cfg.pose_refine.l2 * terms["pose_reg"]
         extra = self.model.field.extra_loss()
         if extra is not None:
             loss = loss + extra
@@ -268,6 +296,10 @@ class Trainer:
         self._set_lr()
         vals = {k: float(v.detach()) for k, v in terms.items()}
         vals["loss"] = float(loss.detach())
+        if self.correction is not None:
+            delta = self.correction.effective().detach()[self._train_t]
+            vals["pose_deg"] = float(delta[:, :3].norm(dim=-1).mean()) * 180.0 / math.pi
+            vals["pose_move"] = float(delta[:, 3:].norm(dim=-1).mean()) * self.box.scale
         return vals
 
     def _sparse_term(self) -> torch.Tensor:
@@ -290,7 +322,7 @@ class Trainer:
         n = min(self.cfg.loss.geo_patches, b.n_patches) * b.patch * b.patch
         x = o[:n] + depth[:n, None] * d[:n]
         nb = self.neighbour[b.frame[:n]]
-        c2w = self.frames.c2w[nb]
+        c2w = self.frames.pose(nb)
         uv, zc = project(self.frames.camera, x, c2w, near=1e-4)
         u, v = uv[:, 0], uv[:, 1]
         h, w = self.frames.h, self.frames.w
@@ -300,6 +332,50 @@ class Trainer:
         valid = inside & self.frames.masks[nb, vi, ui]
         o2, d2 = self.frames.pixel_rays(c2w, u.detach(), v.detach())
         return losses.geometric_consistency(zc, self._depth(o2, d2), valid)
+
+    # --- poses ------------------------------------------------------------------------------------
+    def refine_heldout(self, held: list[int]) -> bool:
+        """Fit the held-out frames' corrections to their images with the field frozen (test-time
+        pose optimisation), so their PSNR measures the field, not the given poses' error.
+        Returns whether it ran."""
+        pc, lc = self.cfg.pose_refine, self.cfg.loss
+        if self.correction is None or not held or pc.heldout_steps <= 0:
+            return False
+        sampler = RaySampler(self.frames, held, pc.heldout_rays, 2, 0.0, self.gen)
+        held_t = torch.as_tensor(held, dtype=torch.long, device=self.device)
+        others = torch.ones(self.frames.n, dtype=torch.bool, device=self.device)
+        others[held_t] = False
+        delta = self.correction.delta
+        opt = torch.optim.Adam([delta], lr=pc.lr, betas=(0.9, 0.99))
+        frozen = [(p, p.requires_grad) for p in self.model.parameters()]
+        for p, _ in frozen:
+            p.requires_grad_(False)
+        self.frames.refining = True
+        try:
+            for _ in range(pc.heldout_steps):
+                b = sampler.sample()
+                o, d = self.frames.rays(b.frame, b.u, b.v)
+                near, far, _ = self.pb.bounds(o, d, self.cfg.sampling.bounds_margin)
+                out = self.model.render_rays(
+                    o, d, near, far, frame=b.frame, jitter=True, gen=self.gen, colour=True
+                )
+                loss = losses.photo(out["rgb"], b.rgb, b.valid, lc.saturation, lc.photo_trim)
+                loss = loss + pc.l2 * self.correction.penalty(held_t)
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                delta.grad[others] = 0.0  # the training frames' corrections stay as trained
+                opt.step()
+        finally:
+            for p, flag in frozen:
+                p.requires_grad_(flag)
+        return True
+
+    def world_poses(self, c2w_world: list[np.ndarray]) -> list[np.ndarray]:
+        """The frames' given world poses with their corrections (as given without any)."""
+        if self.correction is None:
+            return [np.asarray(c, np.float64) for c in c2w_world]
+        delta = self.correction.effective().detach().double().cpu().numpy()
+        return corrected_world(c2w_world, delta, self.box)
 
     # --- the loop -----------------------------------------------------------------------------
     def fit(self, advance: Callable[..., None] | None = None) -> None:

@@ -1,6 +1,7 @@
 """04_nerf (DESIGN §3): the only reader of the NeRF stage's folder, beside the stage that writes
 it: the trained model (through render.load_model, so inference never imports training), the
-training log and plots, the held-out evaluation (metrics.json) and the stage's summary."""
+training log and plots, the held-out evaluation (metrics.json), the refined cameras
+(cameras_refined.json, written when the poses were refined with the field) and the summary."""
 
 from __future__ import annotations
 
@@ -10,16 +11,40 @@ from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+from pydantic import BaseModel
+
 from endopipe.pipeline.cache import Manifest
 from endopipe.stages.nerf.render import MODEL_FILE, load_model
 
 if TYPE_CHECKING:
     from endopipe.stages.nerf.model import NerfModel
+    from endopipe.stages.poses.view import PosesView
 
 TRAIN_LOG_FILE = "train_log.csv"
 LOSS_PLOT_FILE = "loss.png"
 HELDOUT_PLOT_FILE = "heldout.png"
 METRICS_FILE = "metrics.json"
+REFINED_CAMERAS_FILE = "cameras_refined.json"
+
+
+class RefinedFrame(BaseModel):
+    index: int
+    c2w: list[list[float]]  # world frame and units of 02_poses/cameras.json, OpenCV
+    heldout: bool = False
+
+
+class RefinedCameras(BaseModel):
+    """cameras_refined.json: the registered frames' poses after the joint refinement (same
+    camera, world frame and units as cameras.json) and how far they moved (the summary's
+    `pose_refine` block)."""
+
+    convention: str = "opencv_c2w"
+    frames: list[RefinedFrame]
+    movement: dict[str, Any] = {}
+
+    def write(self, folder: Path) -> None:
+        (Path(folder) / REFINED_CAMERAS_FILE).write_text(self.model_dump_json(indent=1))
 
 
 class NerfView:
@@ -37,6 +62,31 @@ class NerfView:
     def model(self, device: str = "cpu") -> NerfModel:
         """The trained NerfModel, in eval mode; its `meta` says which frames were held out."""
         return load_model(self.model_path, device)
+
+    # --- cameras ------------------------------------------------------------------------------
+    @property
+    def refined_cameras_path(self) -> Path:
+        return self.folder / REFINED_CAMERAS_FILE
+
+    @cached_property
+    def refined_cameras(self) -> RefinedCameras | None:
+        """cameras_refined.json; None when the poses were used as given."""
+        path = self.refined_cameras_path
+        if not path.is_file():
+            return None
+        return RefinedCameras.model_validate_json(path.read_text())
+
+    def c2w(self, poses: PosesView) -> dict[int, np.ndarray]:
+        """The registered frames' world c2w the field was fitted to: the refined poses when the
+        NeRF refined them, else those of 02_poses. Depth maps and meshes use these, so they
+        agree with the field."""
+        refined = self.refined_cameras
+        out = {i: np.asarray(c, np.float64) for i, c in poses.c2w.items()}
+        if refined is not None:
+            for f in refined.frames:
+                if f.index in out:
+                    out[f.index] = np.array(f.c2w, np.float64)
+        return out
 
     # --- training -----------------------------------------------------------------------------
     @property
