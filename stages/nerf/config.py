@@ -330,9 +330,10 @@ class PoseRefineConfig(_Section):
     camera's own frame, c2w @ exp(delta) (see pose_refine.py)."""
 
     mode: Literal["auto", "on", "off"] = Field(
-        "auto",
+        "off",
         description="auto: on when the poses come from COLMAP SfM (poses.source=colmap), off "
-        "for ground-truth or file poses; on / off: always / never.",
+        "for ground-truth or file poses; on / off: always / never. Off by default: on a tube "
+        "with known perturbed poses it did not yet reduce the pose error (issue 16).",
     )
     lr: float = Field(
         1e-3,

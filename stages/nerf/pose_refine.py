@@ -29,6 +29,7 @@ from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 from scipy.spatial.transform import Rotation
 from torch import nn
 
+from endopipe.stages.nerf.scene import SceneBox
 from endopipe.stages.nerf.view import RefinedCameras, RefinedFrame
 
 
@@ -83,7 +84,9 @@ class PoseCorrection(nn.Module):
         return self.effective()[frames].square().sum(-1).mean()
 
 
-def corrected_world(c2w_world: Sequence[np.ndarray], delta: np.ndarray, box) -> list[np.ndarray]:
+def corrected_world(
+    c2w_world: Sequence[np.ndarray], delta: np.ndarray, box: SceneBox
+) -> list[np.ndarray]:
     """World poses with their corrections (F, 6; `PoseCorrection.effective`) in float64. The
     scene frame is the world turned by box.rotation (Q), shifted and divided by box.scale (s), so
     [exp(w) R_s | c_s + t] is, in the world, [Q exp(w) Q^T R | c + s Q t]: zero corrections give
@@ -92,8 +95,9 @@ def corrected_world(c2w_world: Sequence[np.ndarray], delta: np.ndarray, box) -> 
     out = []
     for c, dv in zip(c2w_world, np.asarray(delta, np.float64), strict=True):
         c = np.asarray(c, np.float64)
-        m = np.eye(4)
-        m[:3, :3] = q @ Rotation.from_rotvec(dv[:3]).as_matrix() @ q.T @ c[:3, :3]
+        m = c.copy()
+        if dv[:3].any():  # (Q Q^T is the identity only up to rounding)
+            m[:3, :3] = q @ Rotation.from_rotvec(dv[:3]).as_matrix() @ q.T @ c[:3, :3]
         m[:3, 3] = c[:3, 3] + box.scale * q @ dv[3:]
         out.append(m)
     return out
