@@ -125,7 +125,7 @@ def test_old_model_loads_and_downstream_falls_back_to_the_given_poses(tmp_path):
     torch.save(blob, nerf_dir / "model.pt")  # as written before pose refinement existed
     assert "pose_refine" not in torch.load(nerf_dir / "model.pt", weights_only=False)["config"]
     model = load_model(nerf_dir)
-    assert model.cfg.pose_refine.mode == "auto"
+    assert model.cfg.pose_refine.mode == "off"  # the default
     view = NerfView(nerf_dir)
     pv = _poses_folder(tmp_path / "02_poses", poses, k)
     c2w = view.c2w(pv)
