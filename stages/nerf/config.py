@@ -269,6 +269,13 @@ class LossConfig(_Section):
         description="Distortion loss (Mip-NeRF 360): concentrates each ray's weight on one "
         "surface instead of a semi-transparent ramp in front of it (0: off).",
     )
+    opacity_weight: float = Field(
+        0.0,
+        ge=0,
+        description="Opacity: (1 - opacity)^2 on the usable pixels' rays (every ray of a scope "
+        "meets tissue within the rays' reach; where the images say it is dark, the near-light "
+        "model puts that tissue far instead of leaving the ray empty). 0: off.",
+    )
     geo_patches: int = Field(
         8, ge=0, description="Patches per step warped into the next frame for L_geo."
     )

@@ -279,6 +279,11 @@ class Trainer:
         if lc.sparse_weight > 0 and self.sparse is not None:
             terms["sparse"] = self._sparse_term()
             loss = loss + lc.sparse_weight * terms["sparse"]
+        if lc.opacity_weight > 0:  # a scope sees tissue along every ray, within its reach
+            valid = b.valid.float()
+            gap = (1.0 - out["opacity"]).clamp_min(0).square()
+            terms["opacity"] = (gap * valid).sum() / valid.sum().clamp_min(1.0)
+            loss = loss + lc.opacity_weight * terms["opacity"]
         if lc.distortion_weight > 0:
             terms["distortion"] = losses.distortion(out["t"], out["weights"], far)
             loss = loss + lc.distortion_weight * terms["distortion"]
