@@ -71,8 +71,8 @@ def choose_prior(
     forced: str | None = None,
 ) -> PriorChoice:
     """The candidate that explains most points, or none when the best explains fewer than
-    `min_fit` of them. `forced` (tube / cavity / none) is kept whatever the scores; a forced
-    tube or cavity weighs its fit (at least `min_fit`, so a forced prior keeps a say)."""
+    `min_fit` of them. `forced` (tube / cavity / none) is kept whatever the scores, with its
+    full weight: the user said what the anatomy is (the scores are still reported)."""
     scores = [score_prior(p, origins, points, tolerance) for p in candidates.values()]
     ranked = sorted(scores, key=lambda s: -s.inlier_fraction)
     listing = ", ".join(
@@ -88,11 +88,10 @@ def choose_prior(
             reason=f"none set by the config ({listing})",
         )
     if forced is not None:
-        own = next(s for s in scores if s.kind == forced)
         return PriorChoice(
             kind=forced,
             forced=True,
-            weight=max(own.inlier_fraction, min_fit),
+            weight=1.0,
             scores=scores,
             reason=f"{forced} set by the config ({listing})",
         )

@@ -28,8 +28,9 @@ class CenterlineConfig(StageConfig):
         0.5,
         ge=0,
         le=1,
-        description="auto: the share of agreeing rays a prior needs to be used. A prior's share "
-        "also scales L_prior's weight.",
+        description="auto: the share of agreeing rays a prior needs to be used. A chosen "
+        "prior's share also scales L_prior's weight (a prior set by the config has its full "
+        "weight).",
     )
     reach_margin: float = Field(
         1.25,
