@@ -2,8 +2,8 @@
 
     .venv/bin/python scripts/depth_figure.py WORKDIR/CASE OUT.png --frames 5 35 65
 
-Each depth is coloured with its own 2-98th percentile range (turbo, near = blue); pixels with
-no depth are grey, outside the field of view black. The ground truth, when the case has one,
+Each depth is coloured as in 05_depth/preview.mp4, over its own 2-98th percentile range; pixels
+with no depth are grey, outside the field of view black. The ground truth, when the case has one,
 is read through the ingest view's door like every stage does.
 """
 
@@ -16,22 +16,17 @@ import cv2
 import numpy as np
 
 from endopipe.stages.depth.evaluate import ground_truth_depths
+from endopipe.stages.depth.preview import colourise, has_depth
 from endopipe.stages.depth.view import DepthView
 from endopipe.stages.ingest.view import IngestView
 
-GREY = (128, 128, 128)
-
 
 def colour(depth: np.ndarray, inside: np.ndarray) -> np.ndarray:
-    valid = inside & (depth > 0) & np.isfinite(depth)
-    out = np.zeros((*depth.shape, 3), np.uint8)
-    out[inside & ~valid] = GREY
-    if valid.any():
-        lo, hi = np.percentile(depth[valid], [2, 98])
-        scaled = np.clip((depth - lo) / max(hi - lo, 1e-9), 0, 1)
-        turbo = cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
-        out[valid] = turbo[valid]
-    return out
+    """The preview's own colouring (stages.depth.preview) over this map's 2-98th percentiles,
+    as BGR for cv2."""
+    valid = inside & has_depth(depth)
+    lo, hi = np.percentile(depth[valid], [2, 98]) if valid.any() else (0.0, 1.0)
+    return cv2.cvtColor(colourise(depth, float(lo), float(hi), inside=inside), cv2.COLOR_RGB2BGR)
 
 
 def main() -> None:
