@@ -111,7 +111,7 @@ def test_reach_is_per_frame_and_free_prior_rays_reach_it(tmp_path: Path) -> None
     pts = np.array([[0, 0, d] for d in np.linspace(10, 100, 50)], float)
     frames = np.array([0] * 25 + [1] * 25)
     # frame 0 saw the near half (10-55), frame 1 the far half (56-100) from z=50: 6-50 away
-    reach = point_reach(c2w, frames, pts, pts, percentile=100)
+    reach = point_reach(c2w, frames, pts, percentile=100)
     assert abs(reach - 55.0) < 1.0
     prior = FreePrior(np.zeros(3), 5.0, 1.25 * reach, 30.0)
     d = torch.tensor([[0.0, 0.0, 2.0], [0.6, 0.0, 0.8]])

@@ -115,21 +115,17 @@ def choose_prior(
 
 def point_reach(
     c2w: dict[int, np.ndarray],
-    frame_of_obs: np.ndarray | None,
-    xyz_of_obs: np.ndarray | None,
-    points: np.ndarray,
+    frame_of_obs: np.ndarray,
+    xyz_of_obs: np.ndarray,
     percentile: float = 98.0,
 ) -> float:
     """How far the cameras see: the largest per-frame `percentile` of the distance from a
-    camera to the points it observed (all points when no observations), in world units."""
+    camera to the points it observed, in world units (0 when no frame saw 3 points)."""
     reach = 0.0
     for i, pose in c2w.items():
-        if frame_of_obs is not None and xyz_of_obs is not None:
-            seen = xyz_of_obs[frame_of_obs == i]
-        else:
-            seen = points
+        seen = np.asarray(xyz_of_obs)[np.asarray(frame_of_obs) == i]
         if len(seen) < 3:
             continue
-        d = np.linalg.norm(np.asarray(seen) - np.asarray(pose)[:3, 3], axis=1)
+        d = np.linalg.norm(seen - np.asarray(pose)[:3, 3], axis=1)
         reach = max(reach, float(np.percentile(d, percentile)))
     return reach

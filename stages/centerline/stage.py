@@ -97,7 +97,7 @@ class Centerline(Stage):
         for note in fit.notes:
             ctx.log(note)
         c2w = {i: poses.c2w[i] for i in poses.registered}
-        seen_reach = point_reach(c2w, frames, seen, seen) if len(seen) else 0.0
+        seen_reach = point_reach(c2w, frames, seen)
         reach = cfg.reach_margin * seen_reach if seen_reach > 0 else None
         prior: LumenPrior
         if choice.kind == "none":
