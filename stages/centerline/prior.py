@@ -142,6 +142,18 @@ class LumenPrior:
         raise NotImplementedError
 
 
+def _flat_rays(
+    origins: Tensorish, dirs: Tensorish
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Rays as flat (N, 3) origins and unit directions, and the directions' norms (N,)."""
+    o = _as_tensor(origins)
+    d = _as_tensor(dirs).to(device=o.device, dtype=o.dtype)
+    o, d = torch.broadcast_tensors(o, d)
+    o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+    dnorm = d.norm(dim=-1).clamp_min(1e-12)
+    return o, d / dnorm[:, None], dnorm
+
+
 def _near_far(
     near_fraction: float, radius_o: torch.Tensor, far: torch.Tensor, dnorm: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -622,12 +634,7 @@ class EllipsoidPrior(LumenPrior):
         max_far: float | None = None,
         near_fraction: float = 0.05,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        o = _as_tensor(origins)
-        d = _as_tensor(dirs).to(device=o.device, dtype=o.dtype)
-        o, d = torch.broadcast_tensors(o, d)
-        o, d = o.reshape(-1, 3), d.reshape(-1, 3)
-        dnorm = d.norm(dim=-1).clamp_min(1e-12)
-        d = d / dnorm[:, None]
+        o, d, dnorm = _flat_rays(origins, dirs)
         b = self._buffers(o.device, o.dtype)
         a = b["a"] * (1.0 + margin)
         oy = ((o - b["c"]) @ b["R"]) / a
@@ -690,10 +697,7 @@ class FreePrior(LumenPrior):
         near_fraction: float = 0.05,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """near: `near_fraction` x scale; far: the reach (past every point the cameras saw)."""
-        o = _as_tensor(origins)
-        d = _as_tensor(dirs).to(device=o.device, dtype=o.dtype)
-        o, d = torch.broadcast_tensors(o, d)
-        dnorm = d.reshape(-1, 3).norm(dim=-1).clamp_min(1e-12)
+        _, _, dnorm = _flat_rays(origins, dirs)
         far = torch.full_like(dnorm, self.reach)
         return _near_far(near_fraction, torch.full_like(dnorm, self.scale), far, dnorm)
 
