@@ -7,6 +7,7 @@ from typing import Literal
 from pydantic import Field
 
 from endopipe.pipeline.stage import StageConfig
+from endopipe.stages.poses.verdict import VerdictConfig
 
 CameraModelName = Literal[
     "SIMPLE_RADIAL",
@@ -78,6 +79,15 @@ class PosesConfig(StageConfig):
     )
     quadratic_overlap: bool = Field(
         True, description="Sequential matching: also match frames 2^k apart."
+    )
+    mapper: Literal["auto", "global", "incremental"] = Field(
+        "auto",
+        description="COLMAP mapper. auto: the global and the incremental mapper on the same "
+        "matches, the one the verdict finds sounder kept (their disagreement is evidence too).",
+    )
+    verdict: VerdictConfig = Field(
+        default_factory=VerdictConfig,
+        description="When SfM poses are called doubtful (no ground truth needed).",
     )
     init_min_num_inliers: int = Field(
         30, ge=8, description="Mapper: inliers the initial pair needs (COLMAP default 100)."

@@ -28,3 +28,4 @@ class Estimate:
     reconstruction: Any = None  # pycolmap.Reconstruction: SfM's, or the known poses' tracks
     info: dict[str, Any] = field(default_factory=dict)
     intrinsics_kind: str = "fixed"
+    verdict: Any = None  # PoseVerdict of SfM poses (None: not assessed, e.g. ground truth)

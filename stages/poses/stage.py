@@ -38,6 +38,12 @@ from endopipe.stages.io.ground_truth import poses_by_frame
 from endopipe.stages.metrics.depth import pose_metrics, registered_fraction
 from endopipe.stages.poses.config import PosesConfig
 from endopipe.stages.poses.estimate import Estimate
+from endopipe.stages.poses.verdict import (
+    PoseVerdict,
+    evidence_from_reconstruction,
+    judge,
+    pick_mapper,
+)
 from endopipe.stages.poses.view import CamerasFile, PosesView
 
 __all__ = ["Poses", "PosesConfig", "PosesSummary"]
@@ -59,6 +65,12 @@ class PosesSummary(Summary):
     aligned_to_gt: bool
     points: int
     seconds: float
+    mapper: str = ""
+    verdict: str = "not assessed"
+    verdict_reasons: str = ""
+    doubtful_frames: str = ""
+    mappers_disagreement_pct: float | None = None
+    depth_drift: float | None = None
 
 
 class Poses(Stage):
@@ -116,7 +128,10 @@ class Poses(Stage):
                 "gt_path_length_mm": m["gt_path_length"],
             }
 
+        verdict = assess(est, cfg, ingest)
+        gate(verdict, cfg)
         write_outputs(ctx, ingest, est, cfg.source, metric)
+        verdict.write(ctx.out / "verdict.json")
         k = est.camera
         summary = PosesSummary(
             source=cfg.source,
@@ -136,6 +151,11 @@ class Poses(Stage):
             seconds=time.perf_counter() - t0,
             **est.info,
             **errors,
+            verdict=verdict.status,
+            verdict_reasons="; ".join(verdict.reasons),
+            doubtful_frames=ranges([f.index for f in verdict.frames if f.status == "doubtful"]),
+            mappers_disagreement_pct=verdict.disagreement_pct,
+            depth_drift=verdict.depth_drift,
         )
         ctx.log(
             f"registered {summary.registered}/{n} frames ({100 * summary.registered_fraction:.0f}%)"
@@ -146,7 +166,42 @@ class Poses(Stage):
             )
             + ("; aligned to ground truth (mm)" if aligned and cfg.source != "gt" else "")
         )
+        ctx.log(verdict_line(verdict))
         return summary
+
+
+def assess(est: Estimate, cfg: PosesConfig, ingest: IngestView) -> PoseVerdict:
+    """SfM's verdict (chosen with the mapper), a file's judged on its triangulated tracks;
+    ground truth is not assessed."""
+    if est.verdict is not None:
+        return est.verdict
+    if cfg.source == "file" and est.reconstruction is not None:
+        evidence = evidence_from_reconstruction(est.reconstruction, ingest.index_by_name())
+        return judge(evidence, len(ingest.frames), cfg.verdict, "file")
+    why = [f"poses from {cfg.source}"]
+    return PoseVerdict(status="not assessed", reasons=why, mapper=cfg.source)
+
+
+def gate(verdict: PoseVerdict, cfg: PosesConfig) -> None:
+    """With verdict.on_doubtful=refuse, doubtful poses stop the run with what to try."""
+    if verdict.status != "doubtful" or cfg.verdict.on_doubtful != "refuse":
+        return
+    raise StageFailed(
+        f"poses doubtful: {'; '.join(verdict.reasons)}; try known intrinsics (--intrinsics "
+        "FILE), a smaller --set ingest.stride, another --set poses.mapper, or --set "
+        "poses.verdict.on_doubtful=warn to go on"
+    )
+
+
+def verdict_line(verdict: PoseVerdict) -> str:
+    """One log line: the verdict, the mapper kept, why, and what became of the others."""
+    doubtful = sum(f.status == "doubtful" for f in verdict.frames)
+    line = f"poses {verdict.status}: {verdict.mapper} mapper, {doubtful} doubtful frame(s)"
+    if verdict.reasons:
+        line += "; " + "; ".join(verdict.reasons)
+    for mapper, why in verdict.others.items():
+        line += f"; {mapper} mapper {why}"
+    return line
 
 
 def from_ground_truth(ingest: IngestView, gt_poses: dict[int, np.ndarray] | None) -> Estimate:
@@ -182,14 +237,26 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Esti
     known = ingest.intrinsics
     scratch = ctx.out / "colmap"
     try:
-        sfm = run_sfm(ingest, scratch, cfg, known, ctx.progress, ctx.log)
+        results = run_sfm(ingest, scratch, cfg, known, ctx.progress, ctx.log)
     finally:
-        clean_scratch(scratch, cfg.keep_database, ("images", "masks", "largest"))
-    if sfm.reconstruction is None:
+        clean_scratch(scratch, cfg.keep_database, ("images", "masks", "largest", "global"))
+    by_mapper = {r.mapper: r for r in results}
+    index_of = ingest.index_by_name()
+    evidence = {
+        r.mapper: evidence_from_reconstruction(r.reconstruction, index_of)
+        if r.reconstruction is not None
+        else None
+        for r in results
+    }
+    if not any(ev is not None and len(ev.index) for ev in evidence.values()):
         check_registered(0, len(ingest.frames), cfg)
+    failures = {r.mapper: r.merge for r in results if r.reconstruction is None}
+    verdict = pick_mapper(evidence, len(ingest.frames), cfg.verdict, failures)
+    sfm = by_mapper[verdict.mapper]
     rec = sfm.reconstruction
     fixed = known is not None and not cfg.refine_known_intrinsics
     xyz, rgb = reconstruction_points(rec)
+    timings = {k: round(v, 2) for r in results for k, v in r.timings.items()}
     return Estimate(
         camera=known if fixed else sfm.camera,
         colmap_model=sfm.colmap_model,
@@ -198,7 +265,9 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Esti
         rgb=rgb,
         reconstruction=rec,
         intrinsics_kind="fixed" if fixed else ("refined" if known is not None else "estimated"),
+        verdict=verdict,
         info={
+            "mapper": sfm.mapper,
             "models": len(sfm.model_sizes),
             "model_sizes": sfm.model_sizes,
             "merge": sfm.merge,
@@ -206,7 +275,7 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Esti
             "mean_reprojection_px": float(rec.compute_mean_reprojection_error()),
             "mean_track_length": float(rec.compute_mean_track_length()),
             "mean_points_per_frame": float(rec.compute_mean_observations_per_reg_image()),
-            **{k: round(v, 2) for k, v in sfm.timings.items()},
+            **timings,
         },
     )
 

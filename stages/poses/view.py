@@ -10,6 +10,7 @@ from pydantic import BaseModel, Field, model_validator
 
 from endopipe.stages.camera import Camera
 from endopipe.stages.io.colmap_model import camera_from_colmap, camera_to_colmap
+from endopipe.stages.poses.verdict import PoseVerdict
 
 
 class FramePose(BaseModel):
@@ -139,6 +140,14 @@ class PosesView:
     def sparse_dir(self) -> Path:
         """sparse/: the COLMAP model with its tracks (absent when the poses came without)."""
         return self.folder / "sparse"
+
+    def verdict(self) -> PoseVerdict | None:
+        """verdict.json: ok / doubtful for the sequence and each frame, with the reasons (None
+        for a folder written before the verdict existed)."""
+        path = self.folder / "verdict.json"
+        if not path.is_file():
+            return None
+        return PoseVerdict.model_validate_json(path.read_text())
 
     def points(self) -> np.ndarray:
         """Sparse 3D points (Nx3) from points.ply; empty when the source gave none."""

@@ -1,0 +1,166 @@
+"""The verdict on SfM poses without ground truth (issue 16): drift, jumps and two mappers that
+disagree are called doubtful; sound poses are not; the gate refuses in one line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from endopipe.cli import main
+from endopipe.stages.camera import look_at
+from endopipe.stages.poses.verdict import FrameEvidence, VerdictConfig, judge, pick_mapper
+
+N = 40
+
+
+def straight_path(steps: np.ndarray, depth: np.ndarray) -> FrameEvidence:
+    """Cameras looking down +z along a gently curving path, `steps` apart; the scene seen at
+    `depth` (what a scale drift shrinks together with the steps)."""
+    pos = np.cumsum(np.r_[0.0, steps])
+    c2w = []
+    for k, z in enumerate(pos):
+        eye = np.array([np.sin(0.05 * k), 0.0, z])
+        c2w.append(look_at(eye, eye + np.array([0.0, 0.0, 1.0]), np.array([0.0, -1.0, 0.0])))
+    return FrameEvidence(
+        index=np.arange(len(pos)),
+        c2w=np.array(c2w),
+        points=np.full(len(pos), 300),
+        reprojection_px=np.full(len(pos), 0.6),
+        median_depth=depth,
+    )
+
+
+def sound() -> FrameEvidence:
+    rng = np.random.default_rng(0)
+    return straight_path(1.0 + 0.2 * rng.random(N - 1), 10.0 * (1 + 0.3 * rng.random(N)))
+
+
+def drifted() -> FrameEvidence:
+    """The bench cavity's failure: every step and the scene shrink by the same factor."""
+    shrink = np.exp(-np.linspace(0, np.log(50), N))
+    return straight_path(shrink[1:], 10.0 * shrink)
+
+
+def test_sound_poses_are_ok() -> None:
+    v = judge(sound(), N, VerdictConfig(), "global")
+    assert v.status == "ok" and not v.reasons and not v.doubtful_frames()
+    assert v.depth_drift is not None and v.depth_drift < 1.5
+
+
+def test_scale_drift_is_doubtful_with_its_factor() -> None:
+    v = judge(drifted(), N, VerdictConfig())
+    assert v.status == "doubtful"
+    assert any("scale drift" in r for r in v.reasons), v.reasons
+    assert v.depth_drift is not None and 30 < v.depth_drift < 60
+
+
+def test_a_misplaced_frame_is_named_and_its_neighbours_are_not_far_off() -> None:
+    ev = sound()
+    ev.c2w[17, :3, 3] += np.array([0.0, 12.0, 0.0])  # one camera thrown 12 steps sideways
+    v = judge(ev, N, VerdictConfig())
+    doubtful = v.doubtful_frames()
+    assert 17 in doubtful and set(doubtful) <= {16, 17, 18}, doubtful
+    assert any("jumps" in r for r in v.frames[17].reasons)
+    assert v.status == "ok"  # one bad frame of 40 is the frame's problem, not the sequence's
+
+
+def test_thin_frames_and_unregistered_frames_are_reported() -> None:
+    ev = sound()
+    ev.points[5] = 12
+    v = judge(ev, N + 10, VerdictConfig())  # 10 frames never registered
+    assert v.frames[5].status == "doubtful" and "12 triangulated points" in v.frames[5].reasons[0]
+    assert [f.status for f in v.frames[N:]] == ["unregistered"] * 10
+    assert any("registered" in r for r in v.reasons)  # 40 of 50 < 90%
+
+
+def test_the_sound_mapper_is_kept_and_the_drifted_one_noted() -> None:
+    v = pick_mapper({"incremental": drifted(), "global": sound()}, N, VerdictConfig())
+    assert v.mapper == "global" and v.status == "ok"
+    assert "scale drift" in v.others["incremental"]
+    assert v.disagreement_pct is not None and v.disagreement_pct > 5
+
+
+def test_two_sound_mappers_that_disagree_make_the_poses_doubtful() -> None:
+    a, b = sound(), sound()
+    b.c2w[N // 2 :, :3, 3] += np.array([0.0, 20.0, 0.0])  # a kink: each path smooth but different
+    b.c2w[N // 2 :, 1, 3] += np.linspace(0, 4, N - N // 2)
+    cfg = VerdictConfig(max_jump=50)  # the kink itself is not what this test is about
+    v = pick_mapper({"global": a, "incremental": b}, N, cfg)
+    assert v.status == "doubtful", v
+    assert any("disagree" in r for r in v.reasons)
+    assert any(f.disagreement_pct and f.disagreement_pct > 5 for f in v.frames)
+
+
+def test_a_mapper_without_a_model_is_noted_not_fatal() -> None:
+    v = pick_mapper({"global": None, "incremental": sound()}, N, VerdictConfig(), {"global": "x"})
+    assert v.mapper == "incremental" and v.others["global"].startswith("no model")
+
+
+# ---------------------------------------------------------------- the stage, end to end
+
+
+def run_args(source: Path, workdir: Path) -> list[str]:
+    return ["run", str(source), "--workdir", str(workdir), "--until", "poses", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def small_colon(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from endopipe.commands.synth import SynthConfig, generate_case
+
+    out = tmp_path_factory.mktemp("synth") / "colon"
+    generate_case(out, SynthConfig(seed=3, frames=16, width=256, height=208))
+    return out
+
+
+def test_poses_stage_writes_its_verdict_and_both_mappers(small_colon: Path, tmp_path: Path) -> None:
+    assert (
+        main(["run", str(small_colon), "--workdir", str(tmp_path), "--until", "poses", "--quiet"])
+        == 0
+    )
+    folder = tmp_path / "colon" / "02_poses"
+    s = json.loads((folder / "manifest.json").read_text())["summary"]
+    verdict = json.loads((folder / "verdict.json").read_text())
+    assert s["verdict"] == verdict["status"] == "ok", verdict["reasons"]
+    assert s["mapper"] == verdict["mapper"] and s["ate_percent_of_path"] <= 1.0, s
+    other = {"global", "incremental"} - {s["mapper"]}
+    assert set(verdict["others"]) == other
+    assert s["mappers_disagreement_pct"] < 1.0  # both mappers find the same path here
+    assert len(verdict["frames"]) == 16
+
+
+def test_doubtful_poses_can_be_refused_in_one_line(
+    small_colon: Path, tmp_path: Path, capsys
+) -> None:
+    args = ["run", str(small_colon), "--workdir", str(tmp_path), "--until", "poses", "--quiet"]
+    strict = ["--set", "poses.verdict.max_depth_drift=1.0001", "--set", "poses.mapper=global"]
+    code = main([*args, *strict, "--set", "poses.verdict.on_doubtful=refuse"])
+    out = capsys.readouterr()
+    assert code == 3
+    lines = [ln for ln in (out.err + out.out).splitlines() if ln.strip()]
+    assert "Traceback" not in out.err and "poses doubtful: scale drift" in " ".join(lines)
+    assert not (tmp_path / "colon" / "02_poses" / "cameras.json").exists()
+
+
+@pytest.mark.slow
+def test_bench_cavity_from_video_keeps_the_mapper_that_does_not_drift(tmp_path: Path) -> None:
+    """Issue 16's case: the incremental mapper drifts (ATE 17.7%), the verdict sees it."""
+    from endopipe.commands.synth import SynthConfig, generate_case
+
+    src = tmp_path / "cavity"
+    generate_case(src, SynthConfig(seed=7, frames=60, width=320, height=256, shape="cavity"))
+    video = tmp_path / "in"
+    video.mkdir()
+    for part in ("video.mp4", "gt", "intrinsics.json"):
+        (video / part).symlink_to(src / part)
+    assert (
+        main(["run", str(video), "--workdir", str(tmp_path / "w"), "--until", "poses", "--quiet"])
+        == 0
+    )
+    folder = tmp_path / "w" / "in" / "02_poses"
+    s = json.loads((folder / "manifest.json").read_text())["summary"]
+    verdict = json.loads((folder / "verdict.json").read_text())
+    assert s["ate_percent_of_path"] <= 2.0 and s["verdict"] == "ok", s
+    assert "scale drift" in verdict["others"]["incremental"], verdict["others"]
