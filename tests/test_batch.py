@@ -292,3 +292,45 @@ def test_rows_name_the_failed_stage_and_keep_the_wall_time_of_the_outputs(tmp_pa
     again = batch_case(task("good", check_only=True))  # what a re-run does with a done case
     assert again.status == "ok" and again.stages_cached == ["ingest"]
     assert again.wall_s == first.wall_s and again.this_batch_s < first.this_batch_s
+
+
+def test_a_doubtful_pose_verdict_reaches_batch_csv_and_page(tmp_path: Path) -> None:
+    """The poses' verdict (02_poses/verdict.json) in its own columns, just before the poses
+    stage's numbers; a case from before the verdict leaves them empty."""
+    from endopipe.commands.batch.case import note_pose_verdict
+    from endopipe.commands.batch.page import write_html
+    from endopipe.commands.batch.table import write_csv
+    from endopipe.stages.poses.verdict import FrameVerdict, PoseVerdict
+    from tests.handmade_case import make_case
+
+    reasons = ["scale drift: the scene's depth changes 7.3x along the path (> 4x)", "only 5 of 6"]
+    frames = [FrameVerdict(index=i, status="ok") for i in range(6)]
+    for i in (1, 2, 5):
+        frames[i] = FrameVerdict(index=i, status="doubtful", reasons=["jumps"])
+    frames[4] = FrameVerdict(index=4, status="unregistered")  # not counted as doubtful
+    verdict = PoseVerdict(status="doubtful", reasons=reasons, mapper="global", frames=frames)
+    rows = []
+    for name, written in (("new", verdict), ("old", None)):
+        case = make_case(tmp_path / name, gt=False, stages=("ingest", "poses"))
+        if written is not None:
+            written.write(case / "02_poses" / "verdict.json")
+        row = CaseRow(case=name, status="ok", reader="case")
+        row.metrics = {"ingest.kept": 6.0, "poses.registered": 5.0, "poses.depth_drift": 7.3}
+        note_pose_verdict(row, case / "02_poses")
+        rows.append(row)
+
+    write_csv(rows, tmp_path / "batch.csv")
+    with open(tmp_path / "batch.csv", newline="") as f:
+        header = next(csv.reader(f))
+    pose_cols = ["pose_verdict", "pose_reasons", "mapper", "doubtful_frames"]
+    at = header.index("poses.registered")
+    assert header[at - 4 : at] == pose_cols and header[at - 5] == "ingest.kept"
+    table = read_csv(tmp_path)
+    new, old = table["new"], table["old"]
+    assert [new[c] for c in pose_cols] == ["doubtful", "; ".join(reasons), "global", "3"]
+    assert [old[c] for c in pose_cols] == ["", "", "", ""]
+
+    page = write_html(rows, tmp_path / "batch.html").read_text()
+    assert "<span class='doubtful'>doubtful</span>" in page
+    assert "1 with doubtful poses" in page
+    assert "scale drift: the scene&#x27;s depth changes 7.3x" in page

@@ -43,6 +43,7 @@ from endopipe.stages.poses.verdict import (
     evidence_from_reconstruction,
     judge,
     pick_mapper,
+    ranges,
 )
 from endopipe.stages.poses.view import CamerasFile, PosesView
 
@@ -465,17 +466,3 @@ def write_outputs(
         frames,
         extra={"endopipe": {"metric": metric, "units": "mm" if metric else "colmap"}},
     )
-
-
-def ranges(indices: list[int]) -> str:
-    """[0, 1, 2, 7, 9, 10] -> '0-2, 7, 9-10'."""
-    parts: list[str] = []
-    start = prev = None
-    for i in [*indices, None]:
-        if i is not None and prev is not None and i == prev + 1:
-            prev = i
-            continue
-        if start is not None:
-            parts.append(f"{start}" if start == prev else f"{start}-{prev}")
-        start = prev = i
-    return ", ".join(parts)

@@ -289,3 +289,17 @@ def pick_mapper(
     for m, why in failures.items():
         verdict.others[m] = f"no model: {why}"
     return verdict
+
+
+def ranges(indices: list[int]) -> str:
+    """[0, 1, 2, 7, 9, 10] -> '0-2, 7, 9-10'."""
+    parts: list[str] = []
+    start = prev = None
+    for i in [*indices, None]:
+        if i is not None and prev is not None and i == prev + 1:
+            prev = i
+            continue
+        if start is not None:
+            parts.append(f"{start}" if start == prev else f"{start}-{prev}")
+        start = prev = i
+    return ", ".join(parts)

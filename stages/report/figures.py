@@ -59,8 +59,10 @@ def plot_trajectory(
     centerline: Curve | None,
     gt: np.ndarray | None,
     units: str,
+    doubtful: np.ndarray | None = None,
 ) -> str:
-    """Three panels: 3D view, the plane of the path's two main axes, radius along the curve."""
+    """Three panels: 3D view, the plane of the path's two main axes, radius along the curve.
+    `doubtful`: a mask over `centres`, the poses the verdict doubts (red crosses)."""
     fig = _figure(13.0, 4.2)
     ax3 = fig.add_subplot(1, 3, 1, projection="3d")
     ax2 = fig.add_subplot(1, 3, 2)
@@ -88,6 +90,9 @@ def plot_trajectory(
         ax3.plot(*curve.T, color="#c0392b", lw=2.0, label="centre line")
     ax3.plot(*centres.T, color="#1f4e79", lw=1.0, alpha=0.6)
     ax3.scatter(*centres.T, c=colours, cmap="viridis", s=10, depthshade=False, label="cameras")
+    bad = np.asarray(doubtful, bool) if doubtful is not None else np.zeros(len(centres), bool)
+    if bad.any():
+        ax3.scatter(*centres[bad].T, marker="x", color="#c0392b", s=28, label="doubtful pose")
     step = max(1, len(centres) // 12)
     q = centres[::step]
     d = views[::step] * 0.06 * scale
@@ -125,6 +130,8 @@ def plot_trajectory(
     p2 = plane(centres)
     ax2.plot(p2[:, 0], p2[:, 1], color="#1f4e79", lw=1.0, alpha=0.6)
     sc = ax2.scatter(p2[:, 0], p2[:, 1], c=colours, cmap="viridis", s=12, zorder=3, label="cameras")
+    if bad.any():
+        ax2.scatter(*p2[bad].T, marker="x", color="#c0392b", s=34, zorder=4, label="doubtful pose")
     ax2.set_aspect("equal", adjustable="datalim")
     ax2.set_xlabel(f"main axis ({units})", fontsize=8)
     ax2.set_ylabel(f"second axis ({units})", fontsize=8)

@@ -61,6 +61,8 @@ class CaseData:
     runs: list[RunRecord] = field(default_factory=list)
     _gt: Any = None
     _gt_error: str | None = None
+    _verdict: Any = None
+    verdict_error: str | None = None
 
     # --- views ----------------------------------------------------------------------------------
     @property
@@ -115,6 +117,16 @@ class CaseData:
             return _as_dict(getattr(self.views.get(stage), "metrics", None))
         except (OSError, ValueError):
             return None
+
+    def pose_verdict(self) -> Any:
+        """02_poses/verdict.json through the poses view: a PoseVerdict, or None for a folder
+        written before the verdict existed, or when unreadable (reason in `verdict_error`)."""
+        if self._verdict is None and self.verdict_error is None and self.poses is not None:
+            try:
+                self._verdict = self.poses.verdict()
+            except Exception as e:  # noqa: BLE001 - a broken verdict costs its block only
+                self.verdict_error = one_line(e)
+        return self._verdict
 
     @property
     def units(self) -> str:

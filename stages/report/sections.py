@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import psutil
 
+from endopipe.stages.report import pose_verdict as pv
 from endopipe.stages.report.figures import (
     Curve,
     PreviewRow,
@@ -157,6 +158,12 @@ def section_summary(data: CaseData, info: Any) -> str:
     psnr = image_metric(data, "psnr")
     if psnr is not None:
         cards.append(card("PSNR", fmt(psnr, "dB"), "held-out frames"))
+    verdict = data.pose_verdict() if poses is not None else None
+    if verdict is not None:
+        kind = {"ok": "ok", "doubtful": "bad"}.get(verdict.status, "muted")
+        n_doubtful = len(pv.doubtful(verdict))
+        note = f"{n_doubtful} doubtful frame(s)" if verdict.status != "not assessed" else ""
+        cards.append(card("Poses", badge(verdict.status, kind), text(note)))
 
     case = data.case
     rows = [
@@ -201,6 +208,8 @@ def section_summary(data: CaseData, info: Any) -> str:
             '<p class="note">No ground truth: the page shows estimates and internal '
             "consistency only; no accuracy is claimed.</p>"
         )
+    if verdict is not None and verdict.status == "doubtful":
+        honesty += pv.headline_html(verdict)  # the poses section says why, frame by frame
     honesty += "".join(
         f'<p class="verdict"><b>{text(s)}</b></p>' for s in verdicts(data.depth_metrics or {})
     )
@@ -315,6 +324,8 @@ def section_poses(data: CaseData, info: Any) -> str | None:
     parts = []
     poses = data.poses
     if poses is not None:
+        verdict = data.pose_verdict()
+        parts.append(pv.verdict_block(verdict, data.verdict_error))
         ids = poses.registered
         if ids:
             centres = poses.centres()
@@ -323,11 +334,14 @@ def section_poses(data: CaseData, info: Any) -> str | None:
                 gt = gt_centres(data, ids)
             except Exception:  # noqa: BLE001 - GT overlay is optional
                 gt = None
-            uri = plot_trajectory(centres, views, centre_line(data), gt, data.units)
+            flagged = {f.index for f in pv.doubtful(verdict)} if verdict is not None else set()
+            doubtful = np.array([i in flagged for i in ids]) if flagged else None
+            uri = plot_trajectory(centres, views, centre_line(data), gt, data.units, doubtful)
             caption = (
                 "Camera centres (coloured by frame order, arrows: viewing direction) and the "
                 "lumen centre line with its radius"
                 + ("; dashed: ground-truth trajectory" if gt is not None else "")
+                + ("; red crosses: doubtful poses" if doubtful is not None else "")
                 + "."
             )
             parts.append(figure_html(uri, caption, "wide"))

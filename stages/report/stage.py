@@ -8,14 +8,15 @@ always included as well, for print and for browsers without WebGL.
 
 What the page shows: the case (input, frames, registered ratio, metric or not, ground-truth
 kind), every stage's wall time and peak memory (from each stage folder's manifest.json), the
-camera trajectory and the centre line, the NeRF's loss curves, depth previews with error maps,
+camera trajectory and the centre line, the poses' verdict (ok / doubtful and why, frame by
+frame; a doubtful one also on the summary), the NeRF's loss curves, depth previews with error maps,
 the metric tables (depth under both protocols, mesh, poses, PSNR / SSIM) and the recent runs.
 Any missing artefact (no ground truth, no mesh metrics, a stage folder absent) is shown as
 "not available" with the reason; a section never takes the page down.
 
 Modules: load.py (the stages' views, manifests, run records), sections.py (each section's
-content), figures.py (plots), mesh3d.py (the mesh on the page), kit.py + templates/ (HTML),
-render.py (the page).
+content), pose_verdict.py (the poses' verdict block), figures.py (plots), mesh3d.py (the mesh
+on the page), kit.py + templates/ (HTML), render.py (the page).
 """
 
 from __future__ import annotations

@@ -69,6 +69,8 @@ def process_case(
             row.peak_rss_mb = max(row.peak_rss_mb, manifest.peak_rss_mb)
             for key, value in numeric_leaves(manifest.summary).items():
                 row.metrics[f"{name}.{key}"] = value
+        if "poses" in manifests:
+            note_pose_verdict(row, pipe.folder(case_dir, "poses"))
         row.wall_s = producing_wall_s(case_dir, manifests)
         report = _report_page(pipe, case_dir)
         row.report = report.relative_to(workdir).as_posix() if report else None
@@ -93,6 +95,24 @@ def process_case(
     if row.status != "ok":
         row.wall_s = row.this_batch_s
     return row
+
+
+def note_pose_verdict(row: CaseRow, folder: Path) -> None:
+    """The poses' verdict into the row, through the poses stage's view (nothing for a folder
+    written before the verdict existed; an unreadable one is said, not raised: the case ran)."""
+    from endopipe.stages.poses.view import PosesView
+
+    try:
+        verdict = PosesView(folder).verdict()
+    except Exception as e:  # noqa: BLE001 - one bad file must not fail a finished case
+        row.pose_reasons = f"verdict.json unreadable: {one_line(e)}"
+        return
+    if verdict is None:
+        return
+    row.pose_verdict = verdict.status
+    row.pose_reasons = "; ".join(verdict.reasons)
+    row.mapper = verdict.mapper
+    row.doubtful_frames = sum(f.status == "doubtful" for f in verdict.frames)
 
 
 def producing_wall_s(case_dir: Path, manifests: dict[str, Manifest]) -> float:

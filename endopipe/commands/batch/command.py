@@ -108,6 +108,8 @@ def print_case_row(console: Console, row: CaseRow) -> None:
     if row.status == "ok":
         ran = "+".join(row.stages_ran) or "nothing (all cached)"
         gt = f"  [yellow]{row.gt_kind} ground truth[/yellow]" if row.gt_kind == "pseudo" else ""
+        if row.pose_verdict == "doubtful":
+            gt += f"  [red]poses doubtful: {escape(row.pose_reasons)}[/red]"
         console.print(
             f"[green]✓[/green] {escape(row.case)}  [dim]{row.reader}[/dim]  ran {ran}, "
             f"{row.this_batch_s:.1f} s{gt}"

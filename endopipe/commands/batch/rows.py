@@ -40,6 +40,11 @@ class CaseRow(BaseModel):
     this_batch_s: float = 0.0
     compute_s: float = 0.0  # sum of the stages' own wall times (from their manifests)
     peak_rss_mb: float = 0.0  # the largest stage peak (from their manifests)
+    # the poses' verdict (02_poses/verdict.json; empty for a folder written before it existed)
+    pose_verdict: str = ""  # ok | doubtful | not assessed
+    pose_reasons: str = ""  # the sequence's reasons, "; "-joined
+    mapper: str = ""  # the mapper kept
+    doubtful_frames: int | None = None  # registered frames called doubtful
     metrics: dict[str, float] = {}
     report: str | None = None  # report.html, relative to the workdir
     input: str = ""

@@ -24,7 +24,9 @@ FIXED_COLUMNS = (
     "compute_s",
     "peak_rss_mb",
 )
-NUMERIC_FIXED = ("wall_s", "this_batch_s", "compute_s", "peak_rss_mb")
+NUMERIC_FIXED = ("wall_s", "this_batch_s", "compute_s", "peak_rss_mb", "doubtful_frames")
+#: The poses' verdict, shown just before the poses stage's own numbers (`poses.*`).
+POSE_COLUMNS = ("pose_verdict", "pose_reasons", "mapper", "doubtful_frames")
 
 
 def metric_columns(rows: Sequence[CaseRow]) -> list[str]:
@@ -32,6 +34,14 @@ def metric_columns(rows: Sequence[CaseRow]) -> list[str]:
     for row in rows:
         cols.update(dict.fromkeys(row.metrics))
     return list(cols)
+
+
+def table_columns(rows: Sequence[CaseRow]) -> list[str]:
+    """The fixed columns, then each stage's numbers; the pose verdict sits before the poses
+    stage's numbers (or after the fixed columns when there are none)."""
+    metrics = metric_columns(rows)
+    at = next((k for k, m in enumerate(metrics) if m.startswith("poses.")), 0)
+    return [*FIXED_COLUMNS, *metrics[:at], *POSE_COLUMNS, *metrics[at:]]
 
 
 def format_cell(value: Any) -> str:
@@ -46,7 +56,7 @@ def format_cell(value: Any) -> str:
 
 def row_values(row: CaseRow, metrics: Sequence[str]) -> dict[str, Any]:
     data = row.model_dump()
-    out = {c: data[c] for c in FIXED_COLUMNS}
+    out = {c: data[c] for c in (*FIXED_COLUMNS, *POSE_COLUMNS)}
     out.update({m: row.metrics.get(m) for m in metrics})
     out["report"] = row.report
     out["input"] = row.input
@@ -56,7 +66,7 @@ def row_values(row: CaseRow, metrics: Sequence[str]) -> dict[str, Any]:
 
 def write_csv(rows: Sequence[CaseRow], path: Path) -> Path:
     metrics = metric_columns(rows)
-    columns = [*FIXED_COLUMNS, *metrics, "report", "input", "host"]
+    columns = [*table_columns(rows), "report", "input", "host"]
     tmp = path.with_name(f".{path.name}.tmp")
     with open(tmp, "w", newline="") as f:
         writer = csv.writer(f)
