@@ -404,29 +404,38 @@ def bench(
         list[str] | None,
         typer.Option("--variant", help="Only this variant, e.g. full (repeatable)."),
     ] = None,
+    sweep: Annotated[
+        str | None,
+        typer.Option(
+            help="poses: the poses stage alone on 8 synthetic cases (shape, seed, texture, "
+            "vignetting, lens); poses.csv and poses.md."
+        ),
+    ] = None,
 ) -> None:
     """The paper's Table 1 on fixed-seed synthetic cases with ablations; CSV and markdown."""
-    from endopipe.commands.bench import markdown_table, plan, run_bench, write_csv
+    from endopipe.commands import bench as b
     from endopipe.pipeline.config import load_config
     from endopipe.pipeline.runner import ensure_writable
 
     ensure_writable(workdir)
     pipe = build_pipeline()
     load_config(pipe.stages, [], set_ or [])  # validate extra settings before hours of work
-    bench_plan = plan(quick, case, variant)
+    bench_plan = b.plan(quick, case, variant, sweep)
+    name, write_csv, table_of, collect = "bench", b.write_csv, b.markdown_table, None
+    if sweep is not None:
+        name, write_csv, table_of, collect = sweep, b.write_pose_csv, b.pose_table, b.pose_row
 
     def save(rows: list[dict]) -> None:  # after every run: a crash keeps the finished rows
-        write_csv(workdir / "bench.csv", rows)
-        (workdir / "bench.md").write_text(markdown_table(rows) + "\n")
+        write_csv(workdir / f"{name}.csv", rows)
+        (workdir / f"{name}.md").write_text(table_of(rows) + "\n")
 
     t0 = time.perf_counter()
-    rows = run_bench(pipe, workdir, bench_plan, prepare_case, console, set_ or [], save)
+    rows = b.run_bench(pipe, workdir, bench_plan, prepare_case, console, set_ or [], save, collect)
     save(rows)
-    table = markdown_table(rows)
-    out.print(table, markup=False, highlight=False, soft_wrap=True)
+    out.print(table_of(rows), markup=False, highlight=False, soft_wrap=True)
     out.print(
         f"bench finished in {time.perf_counter() - t0:.0f} s; "
-        f"{workdir / 'bench.csv'}, {workdir / 'bench.md'}"
+        f"{workdir / f'{name}.csv'}, {workdir / f'{name}.md'}"
     )
 
 

@@ -113,3 +113,114 @@ def test_rows_and_table_put_the_two_guesses_beside_ours(tmp_path: Path) -> None:
     write_csv(tmp_path / "bench.csv", [row])
     header = (tmp_path / "bench.csv").read_text().splitlines()[0].split(",")
     assert header == list(COLUMNS) and "brightness_delta1" in header
+
+
+def test_the_pose_sweep_plan_varies_what_sfm_finds_hard() -> None:
+    from endopipe.commands.bench import input_name
+
+    sweep = plan(False, sweep="poses")
+    assert sweep.until == "poses" and sweep.variants == ["full"] and len(sweep.cases) >= 8
+    cases = sweep.cases
+    assert {c.shape for c in cases} == {"colon", "cavity"}
+    assert {("colon", 7), ("cavity", 7)} <= {(c.shape, c.seed) for c in cases}
+    assert len({c.seed for c in cases}) >= 3
+    assert {c.texture_contrast for c in cases} >= {0.5, 0.75, 1.0}
+    assert any(c.vignetting == 0.4 for c in cases) and any(c.lens == "barrel" for c in cases)
+    assert all((c.frames, c.width, c.height) == (60, 320, 256) for c in cases)
+    # cases that differ in what is rendered never share an input folder
+    assert len({input_name(c) for c in cases}) == len(cases)
+    assert input_name(cases[0]) == "colon_s7_60x320x256"  # the bench colon's own input
+    twins = [
+        cases[0].model_copy(update=u) for u in ({"vignetting": 0.4}, {"texture_contrast": 0.5})
+    ]
+    assert len({input_name(c) for c in [cases[0], *twins]}) == 3
+    assert [c.name for c in plan(False, ["cavity_s7"], sweep="poses").cases] == ["cavity_s7"]
+    with pytest.raises(ConfigError, match="unknown bench case colon;"):
+        plan(False, ["colon"], sweep="poses")  # the table's case is not a sweep case
+    with pytest.raises(ConfigError, match="unknown sweep nerf"):
+        plan(False, sweep="nerf")
+    with pytest.raises(ConfigError, match="no --variant"):
+        plan(False, None, ["full"], sweep="poses")
+
+
+def _sweep_row(case: str, ate: float | None, verdict: str | None, **kw) -> dict:
+    row = dict.fromkeys(
+        ("registered", "mapper", "doubtful_count", "disagreement_pct", "poses_s", "error")
+    )
+    row.update(case=case, shape="colon", seed=7, contrast=1.0, vignetting=0.0, lens="pinhole")
+    row.update(ate_pct=ate, verdict=verdict, reasons="", other="", doubtful_frames="")
+    return {**row, **kw}
+
+
+def test_pose_table_tallies_the_verdict_against_the_ate(tmp_path: Path) -> None:
+    from endopipe.commands.bench import POSE_COLUMNS, count_ranges, pose_table, write_pose_csv
+
+    assert count_ranges("0-2, 7, 9-10") == 6 and count_ranges("") == 0
+    rows = [
+        _sweep_row("a", 0.4, "ok", registered=1.0, mapper="global", doubtful_count=0),
+        _sweep_row("b", 2.0, "doubtful", reasons="scale drift: 5.0x along the path (> 4x)"),
+        _sweep_row("c", 3.5, "ok"),  # between the yardsticks: counted in neither
+        _sweep_row("d", 17.7, "doubtful", other="incremental: sound on its own"),
+        _sweep_row("e", 6.0, "ok"),  # wrong and not caught
+        _sweep_row("f", None, None, error="poses: only 3 of 60 frames registered"),
+    ]
+    table = pose_table(rows)
+    assert (
+        "ATE ≤ 2%: 2 of 6 cases; ATE > 5%: 2, of them marked doubtful: 1; "
+        "ATE ≤ 2% marked doubtful: 1; no ATE (failed or no ground truth): 1"
+    ) in table
+    lines = table.splitlines()
+    assert lines[2] == (
+        "| a | colon | 7 | 1 | 0 | pinhole | 1.00 | 0.40 | global | ok | – | 0 | – | – | – |"
+    )
+    assert "| doubtful | scale drift: 5.0x along the path |" in lines[3]  # threshold dropped
+    assert (
+        "| failed |" in lines[7]
+        and lines[-1] == "- f failed: poses: only 3 of 60 frames registered"
+    )
+    write_pose_csv(tmp_path / "poses.csv", rows)
+    header = (tmp_path / "poses.csv").read_text().splitlines()[0].split(",")
+    assert header == list(POSE_COLUMNS)
+
+
+def test_the_sweep_option_writes_its_own_table(tmp_path: Path, monkeypatch) -> None:
+    from typer.testing import CliRunner
+
+    from endopipe import cli
+    from endopipe.commands import bench
+
+    seen = {}
+
+    def fake_run(pipe, workdir, bench_plan, prepare, console, sets, on_row, collect):
+        seen.update(until=bench_plan.until, collect=collect)
+        rows = [_sweep_row("colon_s7", 0.3, "ok")]
+        on_row(rows)
+        return rows
+
+    monkeypatch.setattr(bench, "run_bench", fake_run)
+    args = ["bench", "--sweep", "poses", "--case", "colon_s7", "--workdir", str(tmp_path)]
+    result = CliRunner().invoke(cli.app, args)
+    assert result.exit_code == 0, result.output
+    assert seen == {"until": "poses", "collect": bench.pose_row}
+    assert "ATE ≤ 2%: 1 of 1 cases" in (tmp_path / "poses.md").read_text()
+    assert (tmp_path / "poses.csv").is_file() and not (tmp_path / "bench.md").exists()
+
+
+def test_a_sweep_run_stops_after_poses_and_its_row_reads_the_verdict(tmp_path: Path) -> None:
+    from endopipe.commands.bench import pose_row, pose_table
+
+    # Ground-truth poses (no COLMAP): the run is seconds, the row is exact.
+    case = BenchCase(
+        name="gt", shape="colon", frames=8, width=96, height=80, seed=2, vignetting=0.3
+    )
+    sweep = BenchPlan(cases=[case], variants=["full"], sets=["poses.source=gt"], until="poses")
+    pipe = build_pipeline()
+    rows = run_bench(pipe, tmp_path, sweep, prepare_case, Console(quiet=True), collect=pose_row)
+    (row,) = rows
+    assert row["error"] is None and row["registered"] == 1.0 and row["ate_pct"] < 1e-6
+    assert row["verdict"] == "not assessed" and row["doubtful_count"] == 0
+    assert (row["vignetting"], row["lens"]) == (0.3, "pinhole")
+    assert (tmp_path / "inputs" / "colon_s2_8x96x80_v0.3" / "video.mp4").is_file()
+    case_dir = tmp_path / "runs" / "gt"
+    assert pipe.manifest(case_dir, "poses") and not pipe.folder(case_dir, "centerline").exists()
+    assert "| not assessed |" in pose_table(rows)

@@ -1,4 +1,5 @@
-"""`endopipe bench`: the paper's Table 1 on fixed-seed synthetic cases, with ablations.
+"""`endopipe bench`: the paper's Table 1 on fixed-seed synthetic cases, with ablations; and
+`--sweep poses`, the pose stage alone over cases that vary what SfM finds hard.
 
 Every variant runs the real pipeline; variants of one case share its cached ingest, poses and
 centerline stages, so only the NeRF and what follows re-run per variant.
@@ -74,6 +75,8 @@ class BenchCase(BaseModel):
     lens: str = "pinhole"  # synth --lens
     fov_diag: float | None = None  # synth --fov-diag
     given_lens: bool = True  # False: intrinsics.json withheld, COLMAP estimates the camera
+    texture_contrast: float = 1.0  # synth --texture-contrast
+    vignetting: float = 0.0  # synth --vignetting
     sets: list[str] = []  # applied to this case's runs (e.g. the COLMAP camera model)
 
 
@@ -81,16 +84,28 @@ class BenchPlan(BaseModel):
     cases: list[BenchCase]
     variants: list[str]
     sets: list[str]  # applied to every run (e.g. shorter training in --quick)
+    until: str | None = None  # the last stage each run goes to (None: the whole DAG)
+
+
+#: `--sweep` name -> what it measures.
+SWEEPS = {"poses": "the poses stage alone on cases that vary shape, seed, texture and optics"}
 
 
 def plan(
-    quick: bool, cases: list[str] | None = None, variants: list[str] | None = None
+    quick: bool,
+    cases: list[str] | None = None,
+    variants: list[str] | None = None,
+    sweep: str | None = None,
 ) -> BenchPlan:
     """The bench's cases and variants; `cases` / `variants` keep only those names (a rerun of
-    one row after a change need not pay for the whole table)."""
-    full = _plan(quick)
-    if not cases:  # the lens cases run when named (--case colon_barrel ...)
-        full.cases = [c for c in full.cases if c.name in DEFAULT_CASES or quick]
+    one row after a change need not pay for the whole table). `sweep` replaces the table's
+    cases by a sweep's (one run each, up to that stage)."""
+    if sweep is not None:
+        full = _sweep_plan(sweep, quick, variants)
+    else:
+        full = _plan(quick)
+        if not cases:  # the lens cases run when named (--case colon_barrel ...)
+            full.cases = [c for c in full.cases if c.name in DEFAULT_CASES or quick]
     if cases:
         unknown = sorted(set(cases) - {c.name for c in full.cases})
         if unknown:
@@ -108,6 +123,28 @@ def plan(
 
 COLON = {"shape": "colon", "frames": 60, "width": 320, "height": 256, "seed": 7}
 DEFAULT_CASES = ("colon", "cavity")
+SWEEP_SIZE = {"frames": 60, "width": 320, "height": 256}
+
+#: The pose sweep: colon and cavity, several seeds, texture contrast 1 / 0.75 / 0.5, vignetting,
+#: a wide barrel lens (given). The two seed-7 cases are the bench's own colon and cavity.
+POSE_SWEEP = [
+    BenchCase(**SWEEP_SIZE, name="colon_s7", shape="colon", seed=7),
+    BenchCase(**SWEEP_SIZE, name="cavity_s7", shape="cavity", seed=7),
+    BenchCase(**SWEEP_SIZE, name="colon_s3_c0.75", shape="colon", seed=3, texture_contrast=0.75),
+    BenchCase(**SWEEP_SIZE, name="cavity_s3_c0.75", shape="cavity", seed=3, texture_contrast=0.75),
+    BenchCase(**SWEEP_SIZE, name="colon_s11_c0.5", shape="colon", seed=11, texture_contrast=0.5),
+    BenchCase(**SWEEP_SIZE, name="cavity_s11_c0.5", shape="cavity", seed=11, texture_contrast=0.5),
+    BenchCase(**SWEEP_SIZE, name="cavity_s5_v0.4", shape="cavity", seed=5, vignetting=0.4),
+    BenchCase(**SWEEP_SIZE, name="colon_s5_barrel", shape="colon", seed=5, lens="barrel"),
+]
+
+
+def _sweep_plan(sweep: str, quick: bool, variants: list[str] | None) -> BenchPlan:
+    if sweep not in SWEEPS:
+        raise ConfigError(f"unknown sweep {sweep}; sweeps: {', '.join(SWEEPS)}")
+    if quick or variants:
+        raise ConfigError("--sweep runs its own cases once each: no --quick, no --variant")
+    return BenchPlan(cases=list(POSE_SWEEP), variants=["full"], sets=[], until="poses")
 
 
 def _plan(quick: bool) -> BenchPlan:
@@ -148,10 +185,12 @@ def run_bench(
     console,
     extra_sets: list[str] | None = None,
     on_row: Callable[[list[dict]], None] | None = None,
+    collect: Callable[..., dict] | None = None,
 ) -> list[dict]:
     """Run every case x variant; return one row per run (the table's rows). A run that fails
     is a row with its one-line error and whatever its fresh stages measured; the bench goes on.
-    `on_row` gets the rows so far after each run (to write results as they come)."""
+    `on_row` gets the rows so far after each run (to write results as they come); `collect`
+    makes a row as `collect_row` does, but from the BenchCase (default: `collect_row`)."""
     rows: list[dict] = []
     for case in bench_plan.cases:
         src = synth_input(workdir / "inputs", case, console)
@@ -170,13 +209,17 @@ def run_bench(
             t0 = time.perf_counter()
             error = None
             try:
-                pipe.run(case_dir, configs, console=console, quiet=False)
+                pipe.run(case_dir, configs, until=bench_plan.until, console=console, quiet=False)
             except EndopipeError as e:
                 error = str(e).splitlines()[0] if str(e) else type(e).__name__
                 console.print(f"[red]{case.name} / {variant} failed:[/red] {error}")
             elapsed = time.perf_counter() - t0
             fresh = {p.stage for p in pipe.status(case_dir, configs) if p.fresh}
-            rows.append(collect_row(pipe, case_dir, case.name, variant, elapsed, fresh, error))
+            if collect is None:
+                row = collect_row(pipe, case_dir, case.name, variant, elapsed, fresh, error)
+            else:
+                row = collect(pipe, case_dir, case, variant, elapsed, fresh, error)
+            rows.append(row)
             if on_row is not None:
                 on_row(rows)
     return rows
@@ -187,9 +230,7 @@ def synth_input(inputs: Path, case: BenchCase, console) -> Path:
     share it)."""
     from endopipe.commands.synth import SynthConfig, generate_case
 
-    lens = "" if case.lens == "pinhole" else f"_{case.lens}"
-    fov = "" if case.fov_diag is None else f"_fov{case.fov_diag:g}"
-    src = inputs / f"{case.shape}_s{case.seed}_{case.frames}x{case.width}x{case.height}{lens}{fov}"
+    src = inputs / input_name(case)
     if not (src / "intrinsics.json").is_file():
         console.print(f"[bold]synthesising[/bold] {src.name}")
         generate_case(
@@ -202,9 +243,20 @@ def synth_input(inputs: Path, case: BenchCase, console) -> Path:
                 shape=case.shape,
                 lens=case.lens,
                 fov_diag_deg=case.fov_diag,
+                texture_contrast=case.texture_contrast,
+                vignetting=case.vignetting,
             ),
         )
     return src
+
+
+def input_name(case: BenchCase) -> str:
+    """The synthetic input's folder name: everything that changes the rendered frames."""
+    lens = "" if case.lens == "pinhole" else f"_{case.lens}"
+    fov = "" if case.fov_diag is None else f"_fov{case.fov_diag:g}"
+    look = "" if case.texture_contrast == 1.0 else f"_c{case.texture_contrast:g}"
+    look += "" if case.vignetting == 0.0 else f"_v{case.vignetting:g}"
+    return f"{case.shape}_s{case.seed}_{case.frames}x{case.width}x{case.height}{lens}{fov}{look}"
 
 
 def collect_row(
@@ -325,3 +377,170 @@ def _fmt(value, digits: int) -> str:
     if value is None:
         return "–"
     return f"{value:.{digits}f}"
+
+
+# ------------------------------------------------------------------ the pose sweep's table
+
+POSE_COLUMNS = (
+    "case",
+    "shape",
+    "seed",
+    "contrast",
+    "vignetting",
+    "lens",
+    "error",
+    "registered",
+    "ate_pct",
+    "mapper",
+    "verdict",
+    "reasons",
+    "doubtful_frames",
+    "doubtful_count",
+    "disagreement_pct",
+    "other",
+    "other_ate_pct",
+    "depth_drift",
+    "poses_s",
+    "features_s",
+    "matching_s",
+    "global_mapping_s",
+    "incremental_mapping_s",
+)
+#: The sweep's yardsticks (issue 16): poses within 2% of the path are good, beyond 5% wrong.
+GOOD_ATE_PCT = 2.0
+BAD_ATE_PCT = 5.0
+
+
+def pose_row(
+    pipe: Pipeline,
+    case_dir: Path,
+    case: BenchCase,
+    variant: str,
+    elapsed: float,
+    fresh: set[str] | None = None,
+    error: str | None = None,
+) -> dict:
+    """One sweep case: what it varies, then the poses manifest's measures and verdict (only a
+    poses folder this run produced: a failed run's folder may hold an earlier run's)."""
+    ok = fresh is None or "poses" in fresh
+    manifest = pipe.manifest(case_dir, "poses") if ok else None
+    s = manifest.summary if manifest else {}
+    verdict = pipe.view(case_dir, "poses").verdict() if manifest else None
+    others = verdict.others if verdict else {}
+    return {
+        "case": case.name,
+        "shape": case.shape,
+        "seed": case.seed,
+        "contrast": case.texture_contrast,
+        "vignetting": case.vignetting,
+        "lens": lens_label(case),
+        "error": error,
+        "registered": s.get("registered_fraction"),
+        "ate_pct": s.get("ate_percent_of_path"),
+        "mapper": s.get("mapper") or None,
+        "verdict": s.get("verdict"),
+        "reasons": s.get("verdict_reasons") or "",
+        "doubtful_frames": s.get("doubtful_frames") or "",
+        "doubtful_count": count_ranges(s.get("doubtful_frames") or "") if manifest else None,
+        "disagreement_pct": s.get("mappers_disagreement_pct"),
+        "other": "; ".join(f"{m}: {_first_clause(why)}" for m, why in others.items()),
+        "other_ate_pct": next(iter((s.get("others_ate_percent") or {}).values()), None),
+        "depth_drift": s.get("depth_drift"),
+        "poses_s": s.get("seconds"),
+        **{k: s.get(k) for k in POSE_COLUMNS[-4:]},
+    }
+
+
+def lens_label(case: BenchCase) -> str:
+    """'pinhole', 'barrel 110°', 'pinhole 110°' (the diagonal field of view when not the
+    synth's default pinhole); '(estimated)' when COLMAP is not told the lens."""
+    from endopipe.commands.synth.lens import LENSES
+
+    fov = case.fov_diag if case.fov_diag is not None else LENSES[case.lens].fov_diag_deg
+    label = case.lens + ("" if fov is None else f" {fov:g}°")
+    return label + ("" if case.given_lens else " (estimated)")
+
+
+def count_ranges(text: str) -> int:
+    """'0-2, 7' -> 4: the frames a ranges string names."""
+    count = 0
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        lo, _, hi = part.partition("-")
+        count += int(hi or lo) - int(lo) + 1
+    return count
+
+
+def _first_clause(text: str) -> str:
+    """'doubtful: scale drift ...; 12% of the path ...' -> 'doubtful'."""
+    return text.split(":")[0].split(";")[0].strip()
+
+
+def _short_reasons(reasons: str) -> str:
+    """The verdict's reasons without their thresholds ('... 12.3x along the path (> 4x)' ->
+    '... 12.3x along the path'), for the markdown table; the CSV keeps them whole."""
+    return "; ".join(r.split(" (")[0] for r in reasons.split("; ") if r)
+
+
+def write_pose_csv(path: Path, rows: list[dict]) -> None:
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=POSE_COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def pose_table(rows: list[dict]) -> str:
+    """The sweep's markdown table, then the tally the verdict is judged by."""
+    lines = [
+        "| case | shape | seed | contrast | vignetting | lens | registered | ATE % | mapper "
+        "| verdict | reasons | doubtful frames | other mapper | disagreement % | poses s |",
+        "|" + "---|" * 15,
+    ]
+    for r in rows:
+        cells = [r["case"], r["shape"], str(r["seed"]), f"{r['contrast']:g}"]
+        cells += [f"{r['vignetting']:g}", r["lens"], _fmt(r["registered"], 2)]
+        cells += [_fmt(r["ate_pct"], 2), r["mapper"] or "–"]
+        cells += ["failed" if r.get("error") else (r["verdict"] or "–")]
+        cells += [_short_reasons(r["reasons"]) or "–"]
+        cells += ["–" if r["doubtful_count"] is None else str(r["doubtful_count"])]
+        other = r["other"] or "–"
+        if r.get("other_ate_pct") is not None:
+            other += f" (ATE {r['other_ate_pct']:.2f}%)"
+        cells += [other, _fmt(r["disagreement_pct"], 2), _fmt(r["poses_s"], 0)]
+        lines.append("| " + " | ".join(cells) + " |")
+    lines += ["", pose_tally(rows)]
+    failed = [r for r in rows if r.get("error")]
+    if failed:
+        lines.append("")
+        lines += [f"- {r['case']} failed: {r['error']}" for r in failed]
+    return "\n".join(lines)
+
+
+def pose_tally(rows: list[dict]) -> str:
+    """One line: how many cases are good (ATE ≤ 2%), how many wrong (> 5%) and how many of
+    those the verdict caught, how many good ones it called doubtful."""
+    scored = [r for r in rows if r["ate_pct"] is not None]
+    good = [r for r in scored if r["ate_pct"] <= GOOD_ATE_PCT]
+    bad = [r for r in scored if r["ate_pct"] > BAD_ATE_PCT]
+    line = (
+        f"ATE ≤ {GOOD_ATE_PCT:g}%: {len(good)} of {len(rows)} cases; "
+        f"ATE > {BAD_ATE_PCT:g}%: {len(bad)}, of them marked doubtful: "
+        f"{sum(r['verdict'] == 'doubtful' for r in bad)}; "
+        f"ATE ≤ {GOOD_ATE_PCT:g}% marked doubtful: {sum(r['verdict'] == 'doubtful' for r in good)}"
+    )
+    unscored = len(rows) - len(scored)
+    line += f"; no ATE (failed or no ground truth): {unscored}" if unscored else ""
+    # the mappers not kept, each judged on its own: does the verdict catch a wrong one?
+    alone = [
+        (r["other_ate_pct"], not r["other"].split(": ", 1)[-1].startswith("sound"))
+        for r in rows
+        if r.get("other_ate_pct") is not None
+    ]
+    if alone:
+        wrong = [doubted for ate, doubted in alone if ate > BAD_ATE_PCT]
+        right = [doubted for ate, doubted in alone if ate <= GOOD_ATE_PCT]
+        line += (
+            f". The mappers not kept, judged alone: ATE > {BAD_ATE_PCT:g}%: {len(wrong)}, "
+            f"marked doubtful: {sum(wrong)}; ATE ≤ {GOOD_ATE_PCT:g}% marked doubtful: "
+            f"{sum(right)} of {len(right)}"
+        )
+    return line

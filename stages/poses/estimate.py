@@ -28,4 +28,5 @@ class Estimate:
     reconstruction: Any = None  # pycolmap.Reconstruction: SfM's, or the known poses' tracks
     info: dict[str, Any] = field(default_factory=dict)
     intrinsics_kind: str = "fixed"
+    alternatives: dict[str, dict[int, np.ndarray]] = field(default_factory=dict)  # not kept
     verdict: Any = None  # PoseVerdict of SfM poses (None: not assessed, e.g. ground truth)

@@ -72,6 +72,8 @@ class PosesSummary(Summary):
     doubtful_frames: str = ""
     mappers_disagreement_pct: float | None = None
     depth_drift: float | None = None
+    #: with ground truth: the ATE (% of path) the mappers not kept would have given
+    others_ate_percent: dict[str, float] = {}
 
 
 class Poses(Stage):
@@ -127,6 +129,11 @@ class Poses(Stage):
                 "ate_percent_of_path": m["ate_percent_of_path"],
                 "rre_deg": m["rre_deg"],
                 "gt_path_length_mm": m["gt_path_length"],
+                "others_ate_percent": {
+                    mapper: round(pose_metrics(c2w, gt_poses)["ate_percent_of_path"], 3)
+                    for mapper, c2w in est.alternatives.items()
+                    if len(set(c2w) & set(gt_poses)) >= 3
+                },
             }
 
         verdict = assess(est, cfg, ingest)
@@ -267,6 +274,7 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Esti
         reconstruction=rec,
         intrinsics_kind="fixed" if fixed else ("refined" if known is not None else "estimated"),
         verdict=verdict,
+        alternatives={r.mapper: r.c2w for r in results if r is not sfm and r.c2w},
         info={
             "mapper": sfm.mapper,
             "models": len(sfm.model_sizes),
