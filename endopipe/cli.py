@@ -407,7 +407,7 @@ def bench(
     sweep: Annotated[
         str | None,
         typer.Option(
-            help="poses: the poses stage alone on 8 synthetic cases (shape, seed, texture, "
+            help="poses: the poses stage alone on 10 synthetic cases (shape, seed, texture, "
             "vignetting, lens); poses.csv and poses.md."
         ),
     ] = None,

@@ -125,8 +125,8 @@ COLON = {"shape": "colon", "frames": 60, "width": 320, "height": 256, "seed": 7}
 DEFAULT_CASES = ("colon", "cavity")
 SWEEP_SIZE = {"frames": 60, "width": 320, "height": 256}
 
-#: The pose sweep: colon and cavity, several seeds, texture contrast 1 / 0.75 / 0.5, vignetting,
-#: a wide barrel lens (given). The two seed-7 cases are the bench's own colon and cavity.
+#: The pose sweep: colon and cavity, several seeds, texture contrast 1 / 0.75 / 0.5 / 0.3,
+#: vignetting, a wide barrel lens (given). The two seed-7 cases are the bench's own colon and cavity.
 POSE_SWEEP = [
     BenchCase(**SWEEP_SIZE, name="colon_s7", shape="colon", seed=7),
     BenchCase(**SWEEP_SIZE, name="cavity_s7", shape="cavity", seed=7),
@@ -136,6 +136,9 @@ POSE_SWEEP = [
     BenchCase(**SWEEP_SIZE, name="cavity_s11_c0.5", shape="cavity", seed=11, texture_contrast=0.5),
     BenchCase(**SWEEP_SIZE, name="cavity_s5_v0.4", shape="cavity", seed=5, vignetting=0.4),
     BenchCase(**SWEEP_SIZE, name="colon_s5_barrel", shape="colon", seed=5, lens="barrel"),
+    # nearly textureless: where the two mappers start to part
+    BenchCase(**SWEEP_SIZE, name="colon_s13_c0.3", shape="colon", seed=13, texture_contrast=0.3),
+    BenchCase(**SWEEP_SIZE, name="cavity_s13_c0.3", shape="cavity", seed=13, texture_contrast=0.3),
 ]
 
 
