@@ -126,7 +126,7 @@ DEFAULT_CASES = ("colon", "cavity")
 SWEEP_SIZE = {"frames": 60, "width": 320, "height": 256}
 
 #: The pose sweep: colon and cavity, several seeds, texture contrast 1 / 0.75 / 0.5 / 0.3,
-#: vignetting, a wide barrel lens (given). The two seed-7 cases are the bench's own colon and cavity.
+#: vignetting, a wide barrel lens (given). The two seed-7 cases are the bench's colon and cavity.
 POSE_SWEEP = [
     BenchCase(**SWEEP_SIZE, name="colon_s7", shape="colon", seed=7),
     BenchCase(**SWEEP_SIZE, name="cavity_s7", shape="cavity", seed=7),
