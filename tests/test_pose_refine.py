@@ -188,3 +188,12 @@ def test_refinement_moves_perturbed_poses_towards_the_truth(tmp_path):
     after = movement([truth[i] for i in bad], [refined[i] for i in bad], length)
     assert after["median_rotation_deg"] < 0.6 * before["median_rotation_deg"]
     assert after["median_translation"] < 0.6 * before["median_translation"]
+
+
+def test_a_bare_on_off_from_the_command_line_is_a_mode() -> None:
+    """`--set nerf.pose_refine.mode=on`: YAML reads on as true; the setting must still take it."""
+    from endopipe.pipeline.config import parse_set
+    from endopipe.stages.nerf.config import PoseRefineConfig
+
+    assert PoseRefineConfig(mode=parse_set("nerf.pose_refine.mode=on")[1]).mode == "on"
+    assert PoseRefineConfig(mode=parse_set("nerf.pose_refine.mode=off")[1]).mode == "off"

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from endopipe.pipeline.stage import StageConfig
 
@@ -376,6 +376,14 @@ class PoseRefineConfig(_Section):
     heldout_rays: int = Field(
         512, ge=16, description="Rays per held-out refinement step (spread over the frames)."
     )
+
+    @field_validator("mode", mode="before")
+    @classmethod
+    def _yaml_on_off(cls, value: object) -> object:
+        """YAML reads a bare on / off (`--set nerf.pose_refine.mode=on`) as a boolean."""
+        if isinstance(value, bool):
+            return "on" if value else "off"
+        return value
 
 
 class NerfConfig(StageConfig):
