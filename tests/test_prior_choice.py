@@ -77,7 +77,7 @@ def test_auto_picks_the_shape_that_predicts_the_points() -> None:
         assert choice.weight == fit[want] and not choice.forced
 
 
-def test_auto_uses_no_prior_when_none_fits_and_a_forced_one_weighs_its_evidence() -> None:
+def test_auto_uses_no_prior_when_none_fits_and_a_forced_one_has_its_full_weight() -> None:
     rng = np.random.default_rng(1)
     cams, views, pts = neither(rng)
     origins, seen, _ = _observe(cams, pts, 80, rng)
@@ -86,11 +86,8 @@ def test_auto_uses_no_prior_when_none_fits_and_a_forced_one_weighs_its_evidence(
     assert choice.kind == "none" and choice.weight == 0.0, choice.reason
     assert "no prior fits" in choice.reason
     forced = choose_prior(cands, origins, seen, 0.25, 0.5, forced="tube")
-    tube_fit = next(s.inlier_fraction for s in forced.scores if s.kind == "tube")
-    assert forced.kind == "tube" and forced.forced and forced.weight == tube_fit < 0.5
+    assert forced.kind == "tube" and forced.forced and forced.weight == 1.0
     assert "set by the config" in forced.reason and "tube" in forced.reason
-    full = choose_prior(cands, origins, seen, 0.25, 0.5, forced="tube", forced_full=True)
-    assert full.kind == "tube" and full.weight == 1.0
 
 
 def test_score_is_the_ratio_of_wall_exit_to_point_distance() -> None:

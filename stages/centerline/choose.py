@@ -69,13 +69,10 @@ def choose_prior(
     tolerance: float,
     min_fit: float,
     forced: str | None = None,
-    forced_full: bool = False,
 ) -> PriorChoice:
     """The candidate that explains most points, or none when the best explains fewer than
-    `min_fit` of them. `forced` (tube / cavity / none) is kept whatever the scores: the user
-    said what the anatomy is; its weight is still its share of the evidence unless
-    `forced_full` (a prior that misses the points would otherwise put walls where the cameras
-    saw none: the cavity preset on the bench colon left 44% of the mesh off the seen surface)."""
+    `min_fit` of them. `forced` (tube / cavity / none) is kept whatever the scores, with its
+    full weight: the user said what the anatomy is (the scores are still reported)."""
     scores = [score_prior(p, origins, points, tolerance) for p in candidates.values()]
     ranked = sorted(scores, key=lambda s: -s.inlier_fraction)
     listing = ", ".join(
@@ -91,14 +88,12 @@ def choose_prior(
             reason=f"none set by the config ({listing})",
         )
     if forced is not None:
-        fit = next((s.inlier_fraction for s in scores if s.kind == forced), 1.0)
-        weight = 1.0 if forced_full else fit
         return PriorChoice(
             kind=forced,
             forced=True,
-            weight=weight,
+            weight=1.0,
             scores=scores,
-            reason=f"{forced} set by the config, L_prior weight {weight:.2f} ({listing})",
+            reason=f"{forced} set by the config ({listing})",
         )
     best = ranked[0] if ranked else None
     if best is None or best.inlier_fraction < min_fit:

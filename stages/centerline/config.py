@@ -29,12 +29,8 @@ class CenterlineConfig(StageConfig):
         ge=0,
         le=1,
         description="auto: the share of agreeing rays a prior needs to be used. A chosen "
-        "prior's share also scales L_prior's weight.",
-    )
-    forced_weight: Literal["fit", "full"] = Field(
-        "fit",
-        description="A prior set by the config (tube / cavity): L_prior weighted by its share "
-        "of agreeing rays, as auto's (fit), or at full weight whatever the evidence (full).",
+        "prior's share also scales L_prior's weight (a prior set by the config has its full "
+        "weight).",
     )
     reach_margin: float = Field(
         1.25,

@@ -89,7 +89,6 @@ class Centerline(Stage):
             cfg.fit_tolerance,
             cfg.min_fit,
             forced=None if cfg.prior == "auto" else cfg.prior,
-            forced_full=cfg.forced_weight == "full",
         )
         ctx.log(f"prior: {choice.kind} ({choice.reason})")
         # The file and plot show the best-fitting shape even when no prior is used.
