@@ -75,6 +75,15 @@ def test_auto_picks_the_shape_that_predicts_the_points() -> None:
         assert choice.kind == want, choice.reason
         assert fit[want] > 0.9, choice.reason
         assert choice.weight == fit[want] and not choice.forced
+        # the user forces the shape that fits worse (below min_fit 0.9): kept, at full weight,
+        # and called doubtful naming the shape that fits
+        wrong = "cavity" if want == "tube" else "tube"
+        cands = _candidates(cams, views, pts)
+        forced = choose_prior(cands, origins, seen, 0.25, 0.9, forced=wrong)
+        assert fit[wrong] < 0.9 and forced.kind == wrong and forced.weight == 1.0
+        assert "doubtful: it predicts only" in forced.reason and want in forced.reason
+        right = choose_prior(cands, origins, seen, 0.25, 0.9, forced=want)
+        assert "doubtful" not in right.reason
 
 
 def test_auto_uses_no_prior_when_none_fits_and_a_forced_one_has_its_full_weight() -> None:
