@@ -11,7 +11,8 @@ import pytest
 
 from endopipe.cli import main
 from endopipe.stages.camera import look_at
-from endopipe.stages.poses.verdict import FrameEvidence, VerdictConfig, judge, pick_mapper
+from endopipe.stages.poses.config import VerdictConfig
+from endopipe.stages.poses.verdict import FrameEvidence, judge, pick_mapper
 
 N = 40
 

@@ -5,7 +5,7 @@ Why: a wrong reconstruction looks fine in COLMAP's own numbers (the bench cavity
 ATE 17.7% of the path at a mean reprojection error of 0.99 px). What gives it away is what no
 single residual sees: the scale drifts (the scene's depth shrinks 50x along the path), the path
 jumps, a frame holds on a handful of points, and two mappers that see the same matches disagree.
-Thresholds: `VerdictConfig`; evidence: `FrameEvidence`, read from a pycolmap Reconstruction.
+Thresholds: `VerdictConfig` (config.py); evidence: `FrameEvidence`, read from a Reconstruction.
 """
 
 from __future__ import annotations
@@ -15,56 +15,13 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, Field
+from pydantic import BaseModel
 from scipy.ndimage import median_filter
 
 from endopipe.stages.camera import rotation_angle_deg, umeyama
+from endopipe.stages.poses.config import VerdictConfig
 
 Status = Literal["ok", "doubtful", "not assessed"]
-
-
-class VerdictConfig(BaseModel):
-    """When a frame or a sequence is called doubtful."""
-
-    min_frame_points: int = Field(
-        40, ge=0, description="A frame seeing fewer triangulated points is doubtful."
-    )
-    max_frame_reprojection_px: float = Field(
-        2.0, gt=0, description="A frame whose mean reprojection error is larger is doubtful."
-    )
-    max_jump: float = Field(
-        6.0,
-        gt=1,
-        description="A step (move or turn) between two frames longer than this many times the "
-        "median step makes both frames doubtful.",
-    )
-    min_jump_deg: float = Field(
-        1.0, ge=0, description="Turns smaller than this (deg) are never a jump."
-    )
-    max_depth_drift: float = Field(
-        4.0,
-        gt=1,
-        description="Scale drift: the sequence is doubtful when the frames' median scene depth "
-        "(5-frame running median) changes by more than this factor along the path.",
-    )
-    max_disagreement_pct: float = Field(
-        5.0,
-        gt=0,
-        description="Two mappers that both look sound but place the cameras this far apart (RMS, "
-        "% of the path, after a similarity) make the sequence doubtful; a frame this far from "
-        "the other mapper's is doubtful.",
-    )
-    max_doubtful_frames: float = Field(
-        0.2, ge=0, le=1, description="A sequence with a larger share of doubtful frames is."
-    )
-    min_registered: float = Field(
-        0.9, ge=0, le=1, description="A sequence registering a smaller share of frames is."
-    )
-    on_doubtful: Literal["warn", "refuse"] = Field(
-        "warn",
-        description="warn: go on and say so (summary, report, batch.csv); refuse: stop with one "
-        "line (exit 3) saying what to try.",
-    )
 
 
 @dataclass
