@@ -184,6 +184,22 @@ def run(
             )
         return
     print_record(record, case_dir)
+    print_pose_doubt(pipe, case_dir)
+
+
+def print_pose_doubt(pipe, case_dir: Path) -> None:
+    """Doubtful poses as the run's last line: everything after the poses inherits them, and
+    the stage log that said so has scrolled away."""
+    try:
+        verdict = pipe.view(case_dir, "poses").verdict()
+    except (OSError, ValueError):  # no poses folder (yet), or one written by an older version
+        return
+    if verdict is not None and verdict.status == "doubtful":
+        console.print(
+            f"[bold yellow]poses doubtful:[/bold yellow] {escape('; '.join(verdict.reasons))} "
+            "(02_poses/verdict.json; the report's poses section names the frames)",
+            soft_wrap=True,
+        )
 
 
 @app.command()

@@ -145,6 +145,18 @@ def test_doubtful_poses_can_be_refused_in_one_line(
     assert not (tmp_path / "colon" / "02_poses" / "cameras.json").exists()
 
 
+def test_doubtful_poses_end_the_run_with_a_warning(
+    small_colon: Path, tmp_path: Path, capsys
+) -> None:
+    strict = ["--set", "poses.verdict.max_depth_drift=1.0001", "--set", "poses.mapper=global"]
+    assert main([*run_args(small_colon, tmp_path), *strict]) == 0
+    out = capsys.readouterr()
+    last = [ln for ln in (out.out + out.err).splitlines() if ln.strip()][-1]
+    assert last.startswith("poses doubtful: scale drift"), last
+    assert main(run_args(small_colon, tmp_path / "plain")) == 0  # sound poses: no such line
+    assert "poses doubtful" not in "".join(capsys.readouterr())
+
+
 @pytest.mark.slow
 def test_bench_cavity_from_video_keeps_the_mapper_that_does_not_drift(tmp_path: Path) -> None:
     """Issue 16's case: the incremental mapper drifts (ATE 17.7%), the verdict sees it."""
