@@ -161,7 +161,7 @@ class Poses(Stage):
             **errors,
             verdict=verdict.status,
             verdict_reasons="; ".join(verdict.reasons),
-            doubtful_frames=ranges([f.index for f in verdict.frames if f.status == "doubtful"]),
+            doubtful_frames=ranges(verdict.doubtful_frames()),
             mappers_disagreement_pct=verdict.disagreement_pct,
             depth_drift=verdict.depth_drift,
         )
@@ -203,7 +203,7 @@ def gate(verdict: PoseVerdict, cfg: PosesConfig) -> None:
 
 def verdict_line(verdict: PoseVerdict) -> str:
     """One log line: the verdict, the mapper kept, why, and what became of the others."""
-    doubtful = sum(f.status == "doubtful" for f in verdict.frames)
+    doubtful = len(verdict.doubtful())
     line = f"poses {verdict.status}: {verdict.mapper} mapper, {doubtful} doubtful frame(s)"
     if verdict.reasons:
         line += "; " + "; ".join(verdict.reasons)

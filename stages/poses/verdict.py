@@ -47,8 +47,9 @@ def evidence_from_reconstruction(rec, index_of: dict[str, int]) -> FrameEvidence
             continue
         w2c = np.eye(4)
         w2c[:3] = image.cam_from_world().matrix()
-        ids = [p.point3D_id for p in image.points2D if p.has_point3D()]
-        xy = np.array([p.xy for p in image.points2D if p.has_point3D()]).reshape(-1, 2)
+        seen = [p for p in image.points2D if p.has_point3D()]
+        ids = [p.point3D_id for p in seen]
+        xy = np.array([p.xy for p in seen]).reshape(-1, 2)
         xyz = np.array([rec.points3D[i].xyz for i in ids]).reshape(-1, 3)
         z = xyz @ w2c[:3, :3].T + w2c[:3, 3]
         error = np.nan
@@ -88,8 +89,12 @@ class PoseVerdict(BaseModel):
     others: dict[str, str] = {}  # mapper not kept -> why
     frames: list[FrameVerdict] = []
 
+    def doubtful(self) -> list[FrameVerdict]:
+        """Registered frames called doubtful (unregistered ones are not: they have no pose)."""
+        return [f for f in self.frames if f.status == "doubtful"]
+
     def doubtful_frames(self) -> list[int]:
-        return [f.index for f in self.frames if f.status != "ok"]
+        return [f.index for f in self.doubtful()]
 
     def write(self, path: Path) -> None:
         path.write_text(self.model_dump_json(indent=2))

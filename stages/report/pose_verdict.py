@@ -33,11 +33,6 @@ def headline_html(verdict: PoseVerdict | None) -> str:
     return f'<p class="verdict{kind}"><b>{text(headline(verdict))}</b></p>'
 
 
-def doubtful(verdict: PoseVerdict) -> list[FrameVerdict]:
-    """Registered frames called doubtful (unregistered ones are listed with the poses)."""
-    return [f for f in verdict.frames if f.status == "doubtful"]
-
-
 def evidence_rows(verdict: PoseVerdict) -> list[tuple[str, str]]:
     """Mapper kept, the others and why, the mappers' disagreement, the depth drift, the count
     of doubtful frames."""
@@ -63,7 +58,7 @@ def evidence_rows(verdict: PoseVerdict) -> list[tuple[str, str]]:
             )
         )
     registered = sum(f.status != "unregistered" for f in verdict.frames)
-    bad = doubtful(verdict)
+    bad = verdict.doubtful()
     shown = f"{len(bad)} of {registered} registered"
     if bad:
         shown += f": {ranges([f.index for f in bad])}"
@@ -112,7 +107,7 @@ def verdict_block(verdict: PoseVerdict | None, error: str | None = None) -> str:
             else ""
         )
     out += kv_table(evidence_rows(verdict))
-    out += frame_table(doubtful(verdict))
+    out += frame_table(verdict.doubtful())
     out += (
         '<p class="note">Judged without ground truth (02_poses/verdict.json): a frame is doubtful '
         "when it sees few triangulated points, reprojects badly, jumps or turns far more than "

@@ -161,7 +161,7 @@ def section_summary(data: CaseData, info: Any) -> str:
     verdict = data.pose_verdict() if poses is not None else None
     if verdict is not None:
         kind = {"ok": "ok", "doubtful": "bad"}.get(verdict.status, "muted")
-        n_doubtful = len(pv.doubtful(verdict))
+        n_doubtful = len(verdict.doubtful())
         note = f"{n_doubtful} doubtful frame(s)" if verdict.status != "not assessed" else ""
         cards.append(card("Poses", badge(verdict.status, kind), text(note)))
 
@@ -334,7 +334,7 @@ def section_poses(data: CaseData, info: Any) -> str | None:
                 gt = gt_centres(data, ids)
             except Exception:  # noqa: BLE001 - GT overlay is optional
                 gt = None
-            flagged = {f.index for f in pv.doubtful(verdict)} if verdict is not None else set()
+            flagged = {f.index for f in verdict.doubtful()} if verdict is not None else set()
             doubtful = np.array([i in flagged for i in ids]) if flagged else None
             uri = plot_trajectory(centres, views, centre_line(data), gt, data.units, doubtful)
             caption = (

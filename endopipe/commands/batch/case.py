@@ -112,7 +112,7 @@ def note_pose_verdict(row: CaseRow, folder: Path) -> None:
     row.pose_verdict = verdict.status
     row.pose_reasons = "; ".join(verdict.reasons)
     row.mapper = verdict.mapper
-    row.doubtful_frames = sum(f.status == "doubtful" for f in verdict.frames)
+    row.doubtful_frames = len(verdict.doubtful())
 
 
 def producing_wall_s(case_dir: Path, manifests: dict[str, Manifest]) -> float:
