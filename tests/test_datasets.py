@@ -543,6 +543,13 @@ def test_c3vd_preview_is_read_in_place_with_relative_ground_truth(c3vd_preview: 
     h, w = depth.shape
     centre = depth[h // 3 : 2 * h // 3, w // 3 : 2 * w // 3]
     assert np.percentile(centre, 90) > np.median(depth[depth > 0])
+    # The codec's ramp from the black outside to the wall (grey 1-17 within 3 px of it; the
+    # raw panel's 0.5th percentile is 1-4 on frames 0-74) is no depth: invalid, and the
+    # octagon itself is kept (94% of the raw panel is rendered).
+    for i in (0, 35, 74):
+        depth = gt.depth(i)
+        assert np.percentile(depth[depth > 0], 0.5) >= 15
+        assert 0.91 < (depth > 0).mean() < 0.94
 
 
 def test_affine_invariant_metrics_ignore_scale_and_shift_only() -> None:

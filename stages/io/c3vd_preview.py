@@ -30,6 +30,11 @@ NAME = "c3vd_preview"
 LAYOUT = "rgb/NNNN.png with depth_vis_gray/NNNN.png (relative depth only)"
 GT_KIND = "relative"
 NUMBERED = re.compile(r"^(\d+)\.png$", re.IGNORECASE)
+# The codec smears the panel's edge against its unrendered (0) region: grey levels within 3 px
+# of it ramp from 0 to the wall's value (median 2 at 1 px, 12-17 at 2 px, 26-31 at 3-4 px, the
+# wall 32-36 beyond, frames 5/35/65). They are no depth, and as a divisor in AbsRel a grey 2
+# outweighs a hundred true pixels, so they count as invalid.
+CODEC_EDGE_PX = 3.0
 
 
 def is_sequence(path: Path) -> bool:
@@ -81,7 +86,7 @@ class C3VDPreviewGroundTruth:
             raise InputError(f"cannot read C3VD preview depth {path}")
         if self._width is not None and raw.shape[1] > self._width:
             raw = raw[:, : self._width]
-        return raw.astype(np.float32)  # grey 0 (nearest or no render) counts as invalid
+        return without_codec_edge(raw).astype(np.float32)  # 0 = invalid (DESIGN §4)
 
     def has_depth(self, source_index: int) -> bool:
         return numbered_file(self.numbers, self._depth, source_index) is not None
@@ -94,3 +99,14 @@ class C3VDPreviewGroundTruth:
 
     def poses(self) -> list[np.ndarray]:
         return []
+
+
+def without_codec_edge(panel: np.ndarray) -> np.ndarray:
+    """The grey panel with 0 (no render) and every pixel within `CODEC_EDGE_PX` of a 0 set to
+    0: there the codec blended the wall's grey with the black outside, so the value is no
+    depth."""
+    rendered = (panel > 0).astype(np.uint8)
+    if rendered.all():
+        return panel
+    distance = cv2.distanceTransform(rendered, cv2.DIST_L2, 5)
+    return np.where(distance > CODEC_EDGE_PX, panel, 0).astype(panel.dtype)
