@@ -195,9 +195,14 @@ def print_pose_doubt(pipe, case_dir: Path) -> None:
     except (OSError, ValueError):  # no poses folder (yet), or one written by an older version
         return
     if verdict is not None and verdict.status == "doubtful":
+        others = "".join(
+            f"; the {m} mapper's poses were sound on their own (`--set poses.mapper={m}` "
+            "keeps them)"
+            for m in verdict.sound_others()
+        )
         console.print(
             f"[bold yellow]poses doubtful:[/bold yellow] {escape('; '.join(verdict.reasons))} "
-            "(02_poses/verdict.json; the report's poses section names the frames)",
+            f"(02_poses/verdict.json; the report's poses section names the frames){escape(others)}",
             soft_wrap=True,
         )
 

@@ -93,6 +93,12 @@ def test_two_sound_mappers_that_disagree_make_the_poses_doubtful() -> None:
     assert v.status == "doubtful", v
     assert any("disagree" in r for r in v.reasons)
     assert any(f.disagreement_pct and f.disagreement_pct > 5 for f in v.frames)
+    assert v.sound_others() == ["incremental"]  # the run's last line offers it
+
+
+def test_a_doubtful_mapper_not_kept_is_no_alternative() -> None:
+    v = pick_mapper({"incremental": drifted(), "global": sound()}, N, VerdictConfig())
+    assert v.sound_others() == []
 
 
 def test_a_mapper_without_a_model_is_noted_not_fatal() -> None:

@@ -69,6 +69,9 @@ def evidence_from_reconstruction(rec, index_of: dict[str, int]) -> FrameEvidence
     )
 
 
+SOUND = "sound on its own"  # how `others` notes a mapper not kept that was judged sound
+
+
 class FrameVerdict(BaseModel):
     index: int
     status: Literal["ok", "doubtful", "unregistered"]
@@ -95,6 +98,10 @@ class PoseVerdict(BaseModel):
 
     def doubtful_frames(self) -> list[int]:
         return [f.index for f in self.doubtful()]
+
+    def sound_others(self) -> list[str]:
+        """Mappers not kept whose reconstruction was sound on its own: the user's alternative."""
+        return [m for m, why in self.others.items() if why.startswith(SOUND)]
 
     def write(self, path: Path) -> None:
         path.write_text(self.model_dump_json(indent=2))
@@ -243,7 +250,7 @@ def pick_mapper(
         gap, _ = compare_paths(evidence[kept], evidence[m])  # type: ignore[arg-type]
         apart = "" if gap is None else f"; {gap:.1f}% of the path from the kept poses"
         if alone[m].status == "ok":
-            verdict.others[m] = f"sound on its own{apart}"
+            verdict.others[m] = f"{SOUND}{apart}"
         else:
             verdict.others[m] = f"doubtful: {'; '.join(alone[m].reasons)}{apart}"
         if verdict.disagreement_pct is None and gap is not None:
