@@ -199,10 +199,13 @@ def test_save_load_round_trip(tmp_path) -> None:
     x = torch.tensor(np.random.default_rng(6).uniform(-80, 80, (1000, 3)))
     np.testing.assert_allclose(back.signed_distance(x).numpy(), tube.signed_distance(x).numpy())
     ell = EllipsoidPrior([0, 0, 0], [3, 2, 1])
+    assert ell.typical_radius == pytest.approx(6 ** (1 / 3))  # its own radius
+    ell.unit = 0.5  # a forced prior that fits badly: the scale of the shape that fits
     ell.save(tmp_path / "cavity.npz")
     back = LumenPrior.load(tmp_path / "cavity.npz")
     assert isinstance(back, EllipsoidPrior)
     np.testing.assert_allclose(back.axes, [3, 2, 1])
+    assert back.typical_radius == 0.5 and back.own_radius == pytest.approx(6 ** (1 / 3))
 
 
 def test_dtypes_and_numpy_input() -> None:
@@ -235,3 +238,25 @@ def test_cuda() -> None:
     o = torch.tensor([[RHO, 0.0, 0.0]], device="cuda")
     _, far = tube.ray_bounds(o, torch.tensor([[0.0, 0.0, 1.0]], device="cuda"), margin=0.0)
     assert abs(float(far.cpu()[0]) - R) < 0.01 * R
+
+
+def test_sampling_reaches_past_a_closed_wall_but_the_wall_stays_where_it_is() -> None:
+    """The cavity preset on a colon: the ellipsoid ends rays the scene continues past. Samples
+    reach the farthest SfM points (`reach`); the wall the prior pulls towards does not move."""
+    from endopipe.stages.nerf.bounds import PriorBounds
+    from endopipe.stages.nerf.config import NerfConfig
+    from endopipe.stages.nerf.scene import SceneBox
+
+    box = SceneBox.fit(np.zeros((1, 3)), 10.0, np.array([[-15.0] * 3, [15.0] * 3]))
+    o = box.world_to_scene(torch.zeros(1, 3))
+    rotation = torch.as_tensor(box.rotation, dtype=torch.float32)
+    d = torch.tensor([[0.0, 0.0, 1.0]]) @ rotation / box.scale  # t in world units
+    ell = EllipsoidPrior([0, 0, 0], [10, 10, 10])
+    ell.reach = 40.0
+    pb = PriorBounds(ell, box, NerfConfig())
+    _, far, _ = pb.bounds(o, d, 0.5)
+    _, wall, has_wall = pb.bounds(o, d, 0.0, wall=True)
+    assert far.item() == pytest.approx(40.0) and wall.item() == pytest.approx(10.0)
+    assert bool(has_wall.item())
+    ell.reach = None  # without points: the inflated wall, as before
+    assert PriorBounds(ell, box, NerfConfig()).bounds(o, d, 0.5)[1].item() == pytest.approx(15.0)

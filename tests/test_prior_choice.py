@@ -82,8 +82,9 @@ def test_auto_picks_the_shape_that_predicts_the_points() -> None:
         forced = choose_prior(cands, origins, seen, 0.25, 0.9, forced=wrong)
         assert fit[wrong] < 0.9 and forced.kind == wrong and forced.weight == 1.0
         assert "doubtful: it predicts only" in forced.reason and want in forced.reason
+        assert forced.scale_from == want  # grids are sized by the shape that fits
         right = choose_prior(cands, origins, seen, 0.25, 0.9, forced=want)
-        assert "doubtful" not in right.reason
+        assert "doubtful" not in right.reason and right.scale_from is None
 
 
 def test_auto_uses_no_prior_when_none_fits_and_a_forced_one_has_its_full_weight() -> None:

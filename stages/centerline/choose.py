@@ -31,6 +31,8 @@ class PriorChoice(BaseModel):
     kind: str  # tube | cavity | none
     forced: bool  # set by the config (tube / cavity), not chosen
     weight: float  # multiplies L_prior (the fit's inlier fraction; 0 for none)
+    #: a forced prior that fits badly: the shape that fits, whose radius sets the scene's scale
+    scale_from: str | None = None
     scores: list[PriorScore]
     reason: str
 
@@ -91,14 +93,13 @@ def choose_prior(
         reason = f"{forced} set by the config ({listing})"
         own = next((s.inlier_fraction for s in scores if s.kind == forced), None)
         best = ranked[0] if ranked else None
+        scale_from = None
         if own is not None and best is not None and own < min_fit <= best.inlier_fraction:
-            # measured: the cavity preset on the bench colon (8% against the tube's 84%) left
-            # 44% of the mesh off the surface the cameras saw
+            scale_from = best.kind
             reason += (
                 f"; doubtful: it predicts only {100 * own:.0f}% of the SfM depths where "
-                f"{best.kind} predicts {100 * best.inlier_fraction:.0f}%, so expect walls the "
-                "cameras did not see (centerline.prior=auto would use the "
-                f"{best.kind})"
+                f"{best.kind} predicts {100 * best.inlier_fraction:.0f}% (centerline.prior="
+                f"auto would use the {best.kind}); the scene's scale is the {best.kind}'s"
             )
         return PriorChoice(
             kind=forced,
@@ -106,6 +107,7 @@ def choose_prior(
             weight=1.0,
             scores=scores,
             reason=reason,
+            scale_from=scale_from,
         )
     best = ranked[0] if ranked else None
     if best is None or best.inlier_fraction < min_fit:

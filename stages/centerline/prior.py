@@ -51,6 +51,10 @@ class LumenPrior:
     weight: float = 1.0
     #: how far the cameras saw SfM points (world units); None: unknown
     reach: float | None = None
+    #: the scene's length scale when it is not this prior's radius: a forced prior that fits
+    #: badly takes it from the shape that fits (the cavity preset's ellipsoid around a colon is
+    #: 2.4x the tube, and grids sized by it were too coarse for the colon's walls)
+    unit: float | None = None
 
     # --- interface ------------------------------------------------------------------------
     def signed_distance(self, x: Tensorish) -> torch.Tensor:
@@ -84,6 +88,12 @@ class LumenPrior:
 
     @property
     def typical_radius(self) -> float:
+        """The scene's length scale (one NeRF scene unit; the mesh's voxels follow it): the
+        prior's own radius, unless `unit` says otherwise."""
+        return float(self.unit) if self.unit else self.own_radius
+
+    @property
+    def own_radius(self) -> float:
         raise NotImplementedError
 
     def _arrays(self) -> dict[str, np.ndarray]:
@@ -99,6 +109,8 @@ class LumenPrior:
         }
         if self.reach is not None:
             arrays["reach"] = np.array(self.reach)
+        if self.unit is not None:
+            arrays["unit"] = np.array(self.unit)
         arrays.update(self._arrays())
         with open(path, "wb") as fh:  # np.savez would append ".npz" to a path without it
             np.savez(fh, **arrays)
@@ -131,6 +143,8 @@ class LumenPrior:
         prior.weight = float(data.get("weight", 1.0))
         if "reach" in data:
             prior.reach = float(data["reach"])
+        if "unit" in data:
+            prior.unit = float(data["unit"])
         return prior
 
     def to(self, device: str | torch.device) -> LumenPrior:
@@ -238,7 +252,7 @@ class TubePrior(LumenPrior):
         return float(self.arclength[-1])
 
     @property
-    def typical_radius(self) -> float:
+    def own_radius(self) -> float:
         return float(np.median(self.radius))
 
     def _build_grid(self) -> dict[str, np.ndarray]:
@@ -556,7 +570,7 @@ class EllipsoidPrior(LumenPrior):
         self._cache: dict[tuple[str, torch.dtype], dict[str, torch.Tensor]] = {}
 
     @property
-    def typical_radius(self) -> float:
+    def own_radius(self) -> float:
         return float(np.prod(self.axes) ** (1.0 / 3.0))
 
     def _buffers(self, device: torch.device, dtype: torch.dtype) -> dict[str, torch.Tensor]:
@@ -670,7 +684,7 @@ class FreePrior(LumenPrior):
         self.far_radii = self.reach / max(self.scale, 1e-12)
 
     @property
-    def typical_radius(self) -> float:
+    def own_radius(self) -> float:
         return self.scale
 
     def _buffers(self, device: torch.device, dtype: torch.dtype) -> dict[str, torch.Tensor]:

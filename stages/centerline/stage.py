@@ -109,6 +109,8 @@ class Centerline(Stage):
             prior = fit.prior(cfg.far_radii)
             prior.weight = choice.weight
             prior.reach = reach
+            if choice.scale_from is not None:
+                prior.unit = fits[choice.scale_from].prior(cfg.far_radii).typical_radius
         prior.save(ctx.out / PRIOR_FILE)
         file = fit.to_file(units).model_dump(mode="json", exclude_none=True)
         file["kind"] = choice.kind
@@ -133,9 +135,7 @@ class Centerline(Stage):
             prior_scores=choice.scores,
             reach=reach,
             length=fit.length,
-            mean_radius=prior.typical_radius
-            if prior.kind != "tube"
-            else float(np.mean(fit.radius)),
+            mean_radius=prior.own_radius if prior.kind != "tube" else float(np.mean(fit.radius)),
             radius_source=fit.radius_source,
             radius_note=fit.radius_note,
             n_points_used=fit.n_points_used,

@@ -37,7 +37,15 @@ class PriorBounds:
         if self.prior.kind == "none":  # no wall: far is the reach of the SfM points
             return near, torch.maximum(far, near * 1.5), torch.zeros_like(near, dtype=torch.bool)
         cap = self.max_far / dw.norm(dim=-1)
-        return near, torch.maximum(far, near * 1.5), far < 0.999 * cap
+        is_wall = far < 0.999 * cap
+        reach = getattr(self.prior, "reach", None)
+        if reach and not wall and self.prior.kind == "cavity":
+            # A closed wall ends every ray, even where the scene goes on (the cavity preset on
+            # a colon: the lumen beyond the ellipsoid); sampling reaches past every point the
+            # cameras saw. Not for the open tube: on the bench colon it cost 2.3x the training
+            # time and 0.3 points of Chamfer (4.90% against 4.57%).
+            far = torch.maximum(far, (reach / dw.norm(dim=-1)).to(far.dtype))
+        return near, torch.maximum(far, near * 1.5), is_wall
 
     def typical_distance(self) -> float | None:
         """Without a wall, the median camera-to-point distance (scene units), else None."""
