@@ -56,7 +56,7 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    version = 2
+    version = 3  # 3: the C3VD preview panel's codec edge is no ground truth
     Config = DepthConfig
 
     @classmethod

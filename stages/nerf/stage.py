@@ -145,7 +145,7 @@ class Nerf(Stage):
 
     name = "nerf"
     needs = ("ingest", "poses", "centerline")
-    version = 1
+    version = 2  # 2: sampling reaches past the SfM points behind a cavity wall
     Config = NerfConfig
     resumable = True
 
