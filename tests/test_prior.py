@@ -240,9 +240,10 @@ def test_cuda() -> None:
     assert abs(float(far.cpu()[0]) - R) < 0.01 * R
 
 
-def test_sampling_reaches_past_a_closed_wall_but_the_wall_stays_where_it_is() -> None:
+def test_sampling_reaches_past_a_contradicted_wall_but_the_wall_stays_where_it_is() -> None:
     """The cavity preset on a colon: the ellipsoid ends rays the scene continues past. Samples
-    reach the farthest SfM points (`reach`); the wall the prior pulls towards does not move."""
+    reach the farthest SfM points (`reach`); the wall the prior pulls towards does not move. A
+    prior that fits keeps its own bounds."""
     from endopipe.stages.nerf.bounds import PriorBounds
     from endopipe.stages.nerf.config import NerfConfig
     from endopipe.stages.nerf.scene import SceneBox
@@ -253,10 +254,11 @@ def test_sampling_reaches_past_a_closed_wall_but_the_wall_stays_where_it_is() ->
     d = torch.tensor([[0.0, 0.0, 1.0]]) @ rotation / box.scale  # t in world units
     ell = EllipsoidPrior([0, 0, 0], [10, 10, 10])
     ell.reach = 40.0
+    fitting = PriorBounds(ell, box, NerfConfig())
+    assert fitting.bounds(o, d, 0.5)[1].item() == pytest.approx(15.0)  # the inflated wall
+    ell.unit = 3.0  # forced, and the SfM points say another shape (of radius 3) fits
     pb = PriorBounds(ell, box, NerfConfig())
     _, far, _ = pb.bounds(o, d, 0.5)
     _, wall, has_wall = pb.bounds(o, d, 0.0, wall=True)
     assert far.item() == pytest.approx(40.0) and wall.item() == pytest.approx(10.0)
     assert bool(has_wall.item())
-    ell.reach = None  # without points: the inflated wall, as before
-    assert PriorBounds(ell, box, NerfConfig()).bounds(o, d, 0.5)[1].item() == pytest.approx(15.0)

@@ -46,7 +46,10 @@ def load_prior(centerline) -> object:
 
 
 def fit_box(c2w: list[np.ndarray], camera: Camera, hw: tuple[int, int], prior, cfg) -> SceneBox:
-    """Scene box around what the cameras can see inside the prior's (inflated) lumen."""
+    """Scene box around what the cameras can see inside the prior's (inflated) lumen, and as
+    far as the samples go past the wall of a prior the SfM points contradict (the cavity
+    preset's ellipsoid around a colon ended the box 6.5 radii down the lumen, the tube's at
+    14.5: the far lumen had no field)."""
     centres = np.array([c[:3, 3] for c in c2w])
     box0 = SceneBox.fit(centres, float(prior.typical_radius), centres)
     box0.lo, box0.hi = np.full(3, -1.0), np.full(3, 1.0)
@@ -59,7 +62,7 @@ def fit_box(c2w: list[np.ndarray], camera: Camera, hw: tuple[int, int], prior, c
     for c in c2w:
         cs = torch.tensor(box0.c2w_to_scene(c), dtype=torch.float32)
         o, d = pixel_rays(camera, cs, u, v)
-        _, far, _ = pb.bounds(o, d, cfg.sampling.bounds_margin, wall=True)
+        _, far, _ = pb.bounds(o, d, cfg.sampling.bounds_margin, wall=True, past_points=True)
         pts.append(box0.scene_to_world_np((o + far[:, None] * d).numpy()))
     f = cfg.field
     return SceneBox.fit(
@@ -145,7 +148,7 @@ class Nerf(Stage):
 
     name = "nerf"
     needs = ("ingest", "poses", "centerline")
-    version = 2  # 2: sampling reaches past the SfM points behind a cavity wall
+    version = 2  # 2: sampling reaches past the SfM points behind a contradicted prior's wall
     Config = NerfConfig
     resumable = True
 
