@@ -75,16 +75,21 @@ def test_auto_picks_the_shape_that_predicts_the_points() -> None:
         assert choice.kind == want, choice.reason
         assert fit[want] > 0.9, choice.reason
         assert choice.weight == fit[want] and not choice.forced
-        # the user forces the shape that fits worse (below min_fit 0.9): kept, at full weight,
-        # and called doubtful naming the shape that fits
+        # the user forces the shape that fits worse (below min_fit 0.9, the other above):
+        # the points contradict it, so the shape that fits is used, and the reason says so
         wrong = "cavity" if want == "tube" else "tube"
         cands = _candidates(cams, views, pts)
-        forced = choose_prior(cands, origins, seen, 0.25, 0.9, forced=wrong)
-        assert fit[wrong] < 0.9 and forced.kind == wrong and forced.weight == 1.0
+        yielded = choose_prior(cands, origins, seen, 0.25, 0.9, forced=wrong)
+        assert fit[wrong] < 0.9 and yielded.kind == want and yielded.weight == fit[want]
+        assert "contradict" in yielded.reason and "centerline.insist=true" in yielded.reason
+        # ... unless the user insists: kept at full weight, called doubtful, and the grids
+        # sized by the shape that fits
+        forced = choose_prior(cands, origins, seen, 0.25, 0.9, forced=wrong, insist=True)
+        assert forced.kind == wrong and forced.weight == 1.0 and forced.forced
         assert "doubtful: it predicts only" in forced.reason and want in forced.reason
-        assert forced.scale_from == want  # grids are sized by the shape that fits
+        assert forced.scale_from == want
         right = choose_prior(cands, origins, seen, 0.25, 0.9, forced=want)
-        assert "doubtful" not in right.reason and right.scale_from is None
+        assert "doubtful" not in right.reason and right.scale_from is None and right.forced
 
 
 def test_auto_uses_no_prior_when_none_fits_and_a_forced_one_has_its_full_weight() -> None:

@@ -18,6 +18,12 @@ class CenterlineConfig(StageConfig):
         "best, or none when neither predicts min_fit of them; tube: a curve with a radius "
         "(colon); cavity: an ellipsoid (stomach); none: no anatomical prior.",
     )
+    insist: bool = Field(
+        False,
+        description="Keep a prior set by the config (tube / cavity) even when the SfM points "
+        "contradict it (it predicts under min_fit of their depths while the other shape "
+        "predicts more); off: such a prior yields to the shape that fits, and says so.",
+    )
     fit_tolerance: float = Field(
         0.25,
         gt=0,

@@ -89,6 +89,7 @@ class Centerline(Stage):
             cfg.fit_tolerance,
             cfg.min_fit,
             forced=None if cfg.prior == "auto" else cfg.prior,
+            insist=cfg.insist,
         )
         ctx.log(f"prior: {choice.kind} ({choice.reason})")
         # The file and plot show the best-fitting shape even when no prior is used.
