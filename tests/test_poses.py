@@ -232,6 +232,28 @@ def test_frames_left_out_join_the_model_again(colon_rerun: Path, tmp_path: Path)
     assert merged.num_reg_images() == 20
 
 
+def test_the_focal_guess_of_an_estimated_camera_is_the_configured_one(
+    colon_rerun: Path, tmp_path: Path
+) -> None:
+    """`poses.focal_factor` starts self-calibration (C3VD: 0.5 found the scope's 45 degrees at
+    half the frame height where COLMAP's 1.2 settled at 27)."""
+    import pycolmap
+
+    from endopipe.stages.ingest.stage import IngestView
+    from endopipe.stages.poses.colmap_sfm import extract, prepare_images
+
+    ingest = IngestView(colon_rerun / "01_ingest")
+    names = list(ingest.index_by_name())[:3]
+    assert PosesConfig().focal_factor == 0.5  # a scope's 90 degrees, not COLMAP's 45
+    cfg = PosesConfig(focal_factor=0.7)
+    images, masks = prepare_images(ingest, names, tmp_path, cfg)
+    extract(tmp_path / "database.db", images, masks, names, cfg, None)
+    with pycolmap.Database.open(tmp_path / "database.db") as db:
+        (camera,) = db.read_all_cameras()
+    assert camera.model.name == "SIMPLE_RADIAL"
+    assert camera.params[0] == pytest.approx(0.7 * max(camera.width, camera.height))
+
+
 def test_source_gt_reproduces_the_ground_truth_exactly(colon: Path, tmp_path: Path) -> None:
     code, _ = run(None, colon, tmp_path, "poses.source=gt", "poses.triangulate_known=false")
     assert code == 0

@@ -329,6 +329,7 @@ def extract(
         reader.camera_params = ",".join(f"{v:.17g}" for v in known[1])
     else:
         reader.camera_model = cfg.camera_model
+        reader.default_focal_length_factor = cfg.focal_factor
     options = pycolmap.FeatureExtractionOptions()
     options.num_threads = -1
     options.use_gpu = False

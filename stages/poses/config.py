@@ -153,6 +153,13 @@ class PosesConfig(StageConfig):
         "SIMPLE_RADIAL",
         description="COLMAP camera model estimated when the intrinsics are unknown.",
     )
+    focal_factor: float = Field(
+        0.5,
+        gt=0,
+        description="Initial focal length of an estimated camera, as a multiple of the larger "
+        "image side: 0.5 is 90 degrees across, a scope's width (COLMAP's own 1.2, 45 degrees, "
+        "left C3VD's lens at half its width). Known intrinsics are not touched.",
+    )
     refine_known_intrinsics: bool = Field(
         False,
         description="Let bundle adjustment refine known intrinsics (default: keep them fixed).",
