@@ -104,22 +104,24 @@ def choose_prior(
         best = ranked[0] if ranked else None
         scale_from = None
         if own is not None and best is not None and own < min_fit <= best.inlier_fraction:
+            contrast = (
+                f"it predicts only {100 * own:.0f}% of the SfM depths where {best.kind} "
+                f"predicts {100 * best.inlier_fraction:.0f}%"
+            )
             if not insist:
                 return PriorChoice(
                     kind=best.kind,
                     forced=False,
                     weight=best.inlier_fraction,
                     scores=scores,
-                    reason=f"{forced} set by the config, but the SfM points contradict it: it "
-                    f"predicts only {100 * own:.0f}% of their depths where {best.kind} "
-                    f"predicts {100 * best.inlier_fraction:.0f}%, so the {best.kind} is used "
-                    f"({listing}; centerline.insist=true keeps the {forced})",
+                    reason=f"{forced} set by the config, but the SfM points contradict it: "
+                    f"{contrast}, so the {best.kind} is used ({listing}; centerline.insist=true "
+                    f"keeps the {forced})",
                 )
             scale_from = best.kind
             reason += (
-                f"; doubtful: it predicts only {100 * own:.0f}% of the SfM depths where "
-                f"{best.kind} predicts {100 * best.inlier_fraction:.0f}% (centerline.prior="
-                f"auto would use the {best.kind}); the scene's scale is the {best.kind}'s"
+                f"; doubtful: {contrast} (centerline.prior=auto would use the {best.kind}); "
+                f"the scene's scale is the {best.kind}'s"
             )
         return PriorChoice(
             kind=forced,

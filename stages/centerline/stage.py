@@ -82,8 +82,9 @@ class Centerline(Stage):
             "cavity": fit_cavity(centres, view_dirs, points, cfg, metric=poses.metric),
         }
         frames, origins, seen = observation_rays(ctx.input("ingest"), poses, points)
+        candidates = {k: f.prior(cfg.far_radii) for k, f in fits.items()}
         choice = choose_prior(
-            {k: f.prior(cfg.far_radii) for k, f in fits.items()},
+            candidates,
             origins,
             seen,
             cfg.fit_tolerance,
@@ -107,11 +108,11 @@ class Centerline(Stage):
             scale = cfg.free_scale * depth
             prior = FreePrior(centres.mean(0), scale, reach or 12.0 * scale, depth)
         else:
-            prior = fit.prior(cfg.far_radii)
+            prior = candidates[choice.kind]
             prior.weight = choice.weight
             prior.reach = reach
             if choice.scale_from is not None:
-                prior.unit = fits[choice.scale_from].prior(cfg.far_radii).typical_radius
+                prior.unit = candidates[choice.scale_from].typical_radius
         prior.save(ctx.out / PRIOR_FILE)
         file = fit.to_file(units).model_dump(mode="json", exclude_none=True)
         file["kind"] = choice.kind

@@ -46,7 +46,7 @@ class PriorBounds:
             return near, torch.maximum(far, near * 1.5), torch.zeros_like(near, dtype=torch.bool)
         cap = self.max_far / dw.norm(dim=-1)
         is_wall = far < 0.999 * cap
-        reach = getattr(self.prior, "reach", None)
+        reach = self.prior.reach
         if past_points is None:
             past_points = not wall
         if reach and past_points and self.prior.unit is not None:
