@@ -17,6 +17,7 @@ from endopipe.stages.camera import (
     camera_rays,
     direction_table,
     image_directions,
+    lens_valid_mask,
     look_at,
     matrix_to_quat_wxyz,
     pixel_directions,
@@ -91,6 +92,29 @@ def test_pixel_directions_invert_project_over_the_whole_image(name: str) -> None
     if camera.distorted:  # the lens moves rays: the inverse is not the pinhole one
         ideal = pixel_directions(camera.pinhole(), u, v)
         assert np.abs(d - ideal).max() > 1e-3
+
+
+@pytest.mark.parametrize("name", sorted(CAMERAS))
+def test_every_pixel_of_a_lens_that_reaches_the_image_has_a_ray(name: str) -> None:
+    assert lens_valid_mask(CAMERAS[name]).all()
+
+
+def test_a_lens_that_bends_back_gives_no_ray_beyond_its_reach() -> None:
+    """C3VD's estimate: SIMPLE_RADIAL (OpenCV k1 alone) with k1 = -0.12 at f = 156 px. Its image
+    radius f r (1 + k1 r^2) peaks at r = 1 / sqrt(3 |k1|): 175 px. Pixels inside keep their
+    ray; beyond, no direction reaches them, and none is made up."""
+    k1, f = -0.12, 156.0
+    cam = Camera(
+        width=400, height=400, fx=f, fy=f, cx=199.5, cy=199.5, model="opencv", dist=[k1, 0, 0, 0]
+    )
+    reach = f / np.sqrt(3 * abs(k1)) * (2 / 3)
+    ok = lens_valid_mask(cam)
+    u, v = pixel_grid(400, 400)
+    r = np.hypot(u - 199.5, v - 199.5)
+    assert ok[r < reach - 2].all() and not ok[r > reach + 2].any()
+    # With k2 > 0 (COLMAP's RADIAL on the same footage: -0.257, 0.035 at 191 px) it reaches all.
+    wide = cam.model_copy(update={"fx": 191.0, "fy": 191.0, "dist": [-0.257, 0.035, 0, 0]})
+    assert lens_valid_mask(wide).all()
 
 
 @pytest.mark.parametrize("name", sorted(CAMERAS))

@@ -262,3 +262,30 @@ def test_sampling_reaches_past_a_contradicted_wall_but_the_wall_stays_where_it_i
     _, wall, has_wall = pb.bounds(o, d, 0.0, wall=True)
     assert far.item() == pytest.approx(40.0) and wall.item() == pytest.approx(10.0)
     assert bool(has_wall.item())
+
+
+def test_prior_bounds_do_not_end_rays_at_the_extrapolated_tube() -> None:
+    """Past the ends of its centerline the tube's wall is its last segment continued straight:
+    a guess. A ray that leaves it there is sampled up to the cap (the far lumen of a bending
+    colon lies beyond that straight wall); a ray that leaves it along the curve keeps the wall.
+    `sampling.open_tube_ends=false` restores the extrapolated wall."""
+    from endopipe.stages.nerf.bounds import PriorBounds
+    from endopipe.stages.nerf.config import NerfConfig
+    from endopipe.stages.nerf.scene import SceneBox
+
+    pts = np.stack([np.zeros(50), np.zeros(50), np.linspace(0.0, 40.0, 50)], 1)
+    tube = TubePrior(pts, 10.0, open_ends=True)
+    box = SceneBox.fit(np.zeros((1, 3)), 10.0, np.array([[-200.0] * 3, [200.0] * 3]))
+    rotation = torch.as_tensor(box.rotation, dtype=torch.float32)
+    o = box.world_to_scene(torch.tensor([[0.0, 0.0, 20.0]] * 2))
+    ahead = [0.2, 0.0, 1.0]  # leaves the straight wall (radius 15) at z = 20 + 75: past the end
+    aside = [1.0, 0.0, 0.2]  # leaves it at z = 23: beside the curve
+    d = torch.tensor([ahead, aside]) @ rotation / box.scale  # t in world units along the axis
+    cfg = NerfConfig()
+    cap = cfg.sampling.far_radii * 10.0
+    _, far, is_wall = PriorBounds(tube, box, cfg).bounds(o, d, 0.5)
+    assert far[0].item() == pytest.approx(cap / float(np.hypot(0.2, 1.0)), rel=1e-4)
+    assert far[1].item() == pytest.approx(15.0, rel=1e-3) and is_wall.tolist() == [False, True]
+    cfg.sampling.open_tube_ends = False
+    _, closed, _ = PriorBounds(tube, box, cfg).bounds(o, d, 0.5)
+    assert closed[0].item() == pytest.approx(75.0, rel=1e-3)

@@ -69,6 +69,28 @@ def direction_table(camera: Camera, device: Any = None) -> Any:
     return torch.as_tensor(image_directions(camera), dtype=torch.float32, device=device)
 
 
+#: A pixel whose undone ray, put back through the lens, lands further than this from it has no
+#: ray: the lens model does not reach it (below).
+LENS_ROUND_TRIP_PX = 0.5
+
+
+def lens_valid_mask(camera: Camera) -> np.ndarray:
+    """(H, W) bool: the pixels the lens model gives a ray. A polynomial lens bends back at some
+    radius (SIMPLE_RADIAL with k1 < 0 at r = 1 / sqrt(3 |k1|) focal lengths), and beyond it no
+    direction maps to the pixel: its "undistortion" is a wrong ray. C3VD's estimated k1 = -0.12
+    stops 175 px from the centre, 5% of the scope's field of view; those rays pointed up to 52 px
+    off. A pinhole reaches every pixel."""
+    if not camera.distorted:
+        return np.ones((camera.height, camera.width), dtype=bool)
+    from endopipe.stages.camera.projection import project_camera
+
+    u, v = pixel_grid(camera.width, camera.height)
+    dirs = image_directions(camera)
+    uv, _ = project_camera(camera, dirs)
+    err = np.hypot(uv[..., 0] - u, uv[..., 1] - v)
+    return np.isfinite(err) & (err <= LENS_ROUND_TRIP_PX)
+
+
 def image_directions(camera: Camera) -> np.ndarray:
     """Camera-frame directions (H, W, 3), z = 1, through every pixel centre of the image."""
     return pixel_directions(camera, *pixel_grid(camera.width, camera.height))

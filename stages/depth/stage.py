@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
+from endopipe.stages.camera import lens_valid_mask
 from endopipe.stages.centerline.view import CenterlineView
 from endopipe.stages.depth.config import DepthConfig
 from endopipe.stages.depth.evaluate import evaluate, ground_truth_depths, headline_coverage
@@ -79,6 +80,7 @@ class Depth(Stage):
         renderer = make_renderer(cfg, model, prior, [c2w[i] for i in poses.registered], k)
         bake_s = time.perf_counter() - t_bake
         heldout = set(getattr(model, "meta", {}).get("heldout", []))
+        beyond_lens = ~lens_valid_mask(k)  # no ray there: no depth (nerf's log says how much)
         for sub in (DEPTH_DIR, OPACITY_DIR):
             (ctx.out / sub).mkdir()
         depths, rgbs, times = {}, {}, []
@@ -87,6 +89,8 @@ class Depth(Stage):
                 t0 = time.perf_counter()
                 out = renderer(k, c2w[i], i, colour=cfg.colour and i in heldout)
                 times.append(time.perf_counter() - t0)
+                out["depth"][beyond_lens] = 0.0
+                out["opacity"][beyond_lens] = 0.0
                 depths[i] = out["depth"].astype(np.float32)
                 np.save(ctx.out / DEPTH_DIR / frame_file(i), depths[i])
                 np.save(ctx.out / OPACITY_DIR / frame_file(i), out["opacity"].astype(np.float32))

@@ -200,6 +200,11 @@ class SamplingConfig(_Section):
     near_fraction: float = Field(
         0.05, gt=0, description="Near bound as a fraction of the lumen radius at the camera."
     )
+    open_tube_ends: bool = Field(
+        True,
+        description="A ray that leaves the tube prior past either end of its centerline (where "
+        "the wall is extrapolated straight, not seen) is not bounded there: far = the cap.",
+    )
     chunk: int = Field(8192, ge=256, description="Rays per chunk when rendering whole images.")
 
 

@@ -43,10 +43,12 @@ def sparse_depth_targets(
     min_track: int,
     max_error: float,
     device: torch.device,
+    usable: np.ndarray | None = None,
 ) -> SparseDepth | None:
     """The observations of the frames in `positions` (frame index -> FrameSet position, the
     training frames only), with track length >= `min_track`, reprojection error <= `max_error`
-    px, in front of the camera and inside the image; z-depth in scene units (world / scale)."""
+    px, in front of the camera and inside the image (and on a `usable` pixel, (H, W) bool, when
+    given: one the lens model reaches); z-depth in scene units (world / scale)."""
     if obs is None or not positions:
         return None
     h, w = size
@@ -54,6 +56,10 @@ def sparse_depth_targets(
     keep &= obs.error <= max_error
     keep &= (obs.uv[:, 0] >= 0) & (obs.uv[:, 0] <= w - 1)
     keep &= (obs.uv[:, 1] >= 0) & (obs.uv[:, 1] <= h - 1)
+    if usable is not None:
+        col = np.clip(np.round(obs.uv[:, 0]), 0, w - 1).astype(np.int64)
+        row = np.clip(np.round(obs.uv[:, 1]), 0, h - 1).astype(np.int64)
+        keep &= usable[row, col]
     idx = np.nonzero(keep)[0]
     if len(idx) == 0:
         return None

@@ -17,7 +17,7 @@ import torch
 
 from endopipe.pipeline.errors import EndopipeError, InputError
 from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
-from endopipe.stages.camera import Camera, pixel_rays
+from endopipe.stages.camera import Camera, lens_valid_mask, pixel_rays
 from endopipe.stages.io.ground_truth import depth_of_frame
 from endopipe.stages.metrics.depth import depth_sequence_metrics
 from endopipe.stages.nerf import losses
@@ -94,6 +94,7 @@ def load_sparse_depth(
         lc.sparse_min_track,
         lc.sparse_max_error,
         device,
+        usable=lens_valid_mask(k.scaled(ingest.width, ingest.height)),
     )
 
 
@@ -114,6 +115,22 @@ def weigh_prior(cfg: NerfConfig, prior, log) -> NerfConfig:
     return cfg.model_copy(update={"loss": loss})
 
 
+def log_lens_reach(k: Camera, ingest, log) -> None:
+    """Say how much of the field of view the lens model gives no ray (trained on nowhere, no
+    depth there), and what would reach it."""
+    fov = ingest.fov()
+    if fov is None or not k.distorted:
+        return
+    inside = fov > 127
+    lost = float((inside & ~lens_valid_mask(k)).sum()) / max(int(inside.sum()), 1)
+    if lost > 0:
+        log(
+            f"lens: the {k.model} model bends back before the edge of the field of view: "
+            f"{lost:.1%} of its pixels have no ray (no training, no depth); a lens model with "
+            "more terms reaches them (--set poses.camera_model=RADIAL)"
+        )
+
+
 def build_frames(ingest, poses, device: torch.device):
     """Registered frames (endopipe order): images in [0, 1], usable masks, world c2w."""
     ids = [i for i in poses.registered if i < len(ingest.frames)]
@@ -123,7 +140,7 @@ def build_frames(ingest, poses, device: torch.device):
     if (k.width, k.height) != (ingest.width, ingest.height):
         k = k.scaled(ingest.width, ingest.height)
     images = np.stack([ingest.image(i) for i in ids]).astype(np.float32) / 255.0
-    masks = np.stack([ingest.mask(i) > 127 for i in ids])
+    masks = np.stack([ingest.mask(i) > 127 for i in ids]) & lens_valid_mask(k)[None]
     c2w = [poses.c2w[i] for i in ids]
     return ids, k, images, masks, c2w
 
@@ -171,6 +188,7 @@ class Nerf(Stage):
         prior = load_prior(ctx.input("centerline"))
         cfg = weigh_prior(cfg, prior, ctx.log)
         ids, k, images, masks, c2w = build_frames(ingest, poses, device)
+        log_lens_reach(k, ingest, ctx.log)
         box = fit_box(c2w, k, images.shape[1:3], prior, cfg)
         frames = FrameSet(
             images, masks, np.stack([box.c2w_to_scene(c) for c in c2w]), k, ids, device
@@ -239,6 +257,7 @@ def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) 
         ctx.log(f"ground truth ignored: {e}")  # it only evaluates the NeRF: not fatal here
         gt = None
     fov = ingest.fov()
+    lens_valid = lens_valid_mask(k)
     pos = {i: p for p, i in enumerate(ids)}
     preds, gts, fovs, mses, times, previews = [], [], [], [], [], []
     for i in held:
@@ -246,7 +265,7 @@ def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) 
         out = render_image(model, prior, k, c2w[pos[i]])
         times.append(time.perf_counter() - t0)
         img = ingest.image(i).astype(np.float32) / 255.0
-        m = ingest.mask(i) > 127
+        m = (ingest.mask(i) > 127) & lens_valid
         mses.append(float(((out["rgb"] - img) ** 2).mean(-1)[m].mean()) if m.any() else np.nan)
         g = depth_of_frame(gt, ingest.frame(i))
         if g is not None and g.shape != out["depth"].shape:
