@@ -57,7 +57,7 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    version = 3  # 3: the C3VD preview panel's codec edge is no ground truth
+    version = 4  # 4: no depth on pixels the lens model does not reach
     Config = DepthConfig
 
     @classmethod

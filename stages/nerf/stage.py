@@ -115,22 +115,6 @@ def weigh_prior(cfg: NerfConfig, prior, log) -> NerfConfig:
     return cfg.model_copy(update={"loss": loss})
 
 
-def log_lens_reach(k: Camera, ingest, log) -> None:
-    """Say how much of the field of view the lens model gives no ray (trained on nowhere, no
-    depth there), and what would reach it."""
-    fov = ingest.fov()
-    if fov is None or not k.distorted:
-        return
-    inside = fov > 127
-    lost = float((inside & ~lens_valid_mask(k)).sum()) / max(int(inside.sum()), 1)
-    if lost > 0:
-        log(
-            f"lens: the {k.model} model bends back before the edge of the field of view: "
-            f"{lost:.1%} of its pixels have no ray (no training, no depth); a lens model with "
-            "more terms reaches them (--set poses.camera_model=RADIAL)"
-        )
-
-
 def build_frames(ingest, poses, device: torch.device):
     """Registered frames (endopipe order): images in [0, 1], usable masks, world c2w."""
     ids = [i for i in poses.registered if i < len(ingest.frames)]
@@ -165,7 +149,7 @@ class Nerf(Stage):
 
     name = "nerf"
     needs = ("ingest", "poses", "centerline")
-    version = 2  # 2: sampling reaches past the SfM points behind a contradicted prior's wall
+    version = 3  # 3: not ended at the tube's extrapolated ends; trained where the lens reaches
     Config = NerfConfig
     resumable = True
 
@@ -188,7 +172,6 @@ class Nerf(Stage):
         prior = load_prior(ctx.input("centerline"))
         cfg = weigh_prior(cfg, prior, ctx.log)
         ids, k, images, masks, c2w = build_frames(ingest, poses, device)
-        log_lens_reach(k, ingest, ctx.log)
         box = fit_box(c2w, k, images.shape[1:3], prior, cfg)
         frames = FrameSet(
             images, masks, np.stack([box.c2w_to_scene(c) for c in c2w]), k, ids, device

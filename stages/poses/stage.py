@@ -21,7 +21,7 @@ import numpy as np
 
 from endopipe.pipeline.errors import ConfigError, InputError, StageFailed
 from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
-from endopipe.stages.camera import apply_sim3, umeyama
+from endopipe.stages.camera import Camera, apply_sim3, lens_valid_mask, umeyama
 from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.io.colmap_model import (
     PoseSet,
@@ -74,6 +74,8 @@ class PosesSummary(Summary):
     depth_drift: float | None = None
     #: with ground truth: the ATE (% of path) the mappers not kept would have given
     others_ate_percent: dict[str, float] = {}
+    #: share of the field of view's pixels the lens model gives a ray (the rest: no depth)
+    lens_reach: float | None = None
 
 
 class Poses(Stage):
@@ -164,6 +166,7 @@ class Poses(Stage):
             doubtful_frames=ranges(verdict.doubtful_frames()),
             mappers_disagreement_pct=verdict.disagreement_pct,
             depth_drift=verdict.depth_drift,
+            lens_reach=lens_reach(k, ingest),
         )
         ctx.log(
             f"registered {summary.registered}/{n} frames ({100 * summary.registered_fraction:.0f}%)"
@@ -175,7 +178,33 @@ class Poses(Stage):
             + ("; aligned to ground truth (mm)" if aligned and cfg.source != "gt" else "")
         )
         ctx.log(verdict_line(verdict))
+        if summary.lens_reach is not None and summary.lens_reach < 1.0:
+            ctx.log(
+                f"lens: the {summary.camera_model} model bends back before the edge of the "
+                f"field of view and reaches {summary.lens_reach:.1%} of it; the rest gets no "
+                "ray, so no depth"
+                + (
+                    " (a lens model with more terms reaches further: --set "
+                    "poses.camera_model=RADIAL)"
+                    if summary.intrinsics == "estimated"
+                    else ""
+                )
+            )
         return summary
+
+
+def lens_reach(k: Camera, ingest: IngestView) -> float | None:
+    """The share of the field-of-view mask's pixels that the lens model gives a ray (None
+    without a mask)."""
+    fov = ingest.fov()
+    if fov is None:
+        return None
+    if (k.width, k.height) != (ingest.width, ingest.height):
+        k = k.scaled(ingest.width, ingest.height)
+    inside = fov > 127
+    if not inside.any() or inside.shape != (k.height, k.width):
+        return None
+    return round(float((inside & lens_valid_mask(k)).sum()) / float(inside.sum()), 4)
 
 
 def assess(est: Estimate, cfg: PosesConfig, ingest: IngestView) -> PoseVerdict:
