@@ -78,7 +78,7 @@ def lens_valid_mask(camera: Camera) -> np.ndarray:
     """(H, W) bool: the pixels the lens model gives a ray. A polynomial lens bends back at some
     radius (SIMPLE_RADIAL with k1 < 0 at r = 1 / sqrt(3 |k1|) focal lengths), and beyond it no
     direction maps to the pixel: its "undistortion" is a wrong ray. C3VD's estimated k1 = -0.12
-    stops 175 px from the centre, 5% of the scope's field of view; those rays pointed up to 52 px
+    stops 173 px from the centre, 5% of the scope's field of view; those rays pointed up to 52 px
     off. A pinhole reaches every pixel."""
     if not camera.distorted:
         return np.ones((camera.height, camera.width), dtype=bool)

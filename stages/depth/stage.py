@@ -80,7 +80,7 @@ class Depth(Stage):
         renderer = make_renderer(cfg, model, prior, [c2w[i] for i in poses.registered], k)
         bake_s = time.perf_counter() - t_bake
         heldout = set(getattr(model, "meta", {}).get("heldout", []))
-        beyond_lens = ~lens_valid_mask(k)  # no ray there: no depth (nerf's log says how much)
+        beyond_lens = ~lens_valid_mask(k)  # no ray there: no depth (poses logs how much)
         for sub in (DEPTH_DIR, OPACITY_DIR):
             (ctx.out / sub).mkdir()
         depths, rgbs, times = {}, {}, []
