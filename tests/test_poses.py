@@ -118,6 +118,26 @@ def test_synthetic_colon_registers_with_small_ate(colon_run: Path) -> None:
         assert key in s
 
 
+def test_the_summary_says_how_much_of_the_field_of_view_the_lens_reaches(colon_run: Path) -> None:
+    """The synthetic colon's pinhole reaches every pixel; a SIMPLE_RADIAL lens with C3VD's
+    k1 = -0.12 at f = 100 px bends back 111 px from the centre, and the share it reaches is the
+    share of the field of view inside that circle."""
+    from endopipe.stages.poses.stage import lens_reach
+
+    assert summary(colon_run)["lens_reach"] == 1.0
+    ingest = IngestView(colon_run / "01_ingest")
+    bent = Camera(
+        width=320, height=256, fx=100.0, fy=100.0, cx=159.5, cy=127.5, model="opencv",
+        dist=[-0.12, 0.0, 0.0, 0.0],
+    )  # fmt: skip
+    fov = ingest.fov() > 127
+    v, u = np.mgrid[0:256, 0:320]
+    inside = np.hypot(u - 159.5, v - 127.5) < 100.0 / np.sqrt(0.36) * (2 / 3)
+    share = lens_reach(bent, ingest)
+    assert share is not None and abs(share - (fov & inside).sum() / fov.sum()) < 0.01
+    assert 0.3 < share < 0.7  # about half: a 111-px circle in a 320x256 frame
+
+
 def test_sfm_observations_give_the_true_depth_of_their_pixels(colon: Path, colon_run: Path) -> None:
     """The tracks the NeRF's sparse-depth loss uses: frame, OpenCV pixel and point must agree
     with the ground-truth depth of that pixel (a half-pixel or frame mix-up would not)."""
