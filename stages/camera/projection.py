@@ -7,6 +7,7 @@ project on the training device).
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Any
 
 import cv2
@@ -93,23 +94,31 @@ def undistort_normalised(camera: Camera, xy_d: np.ndarray) -> np.ndarray:
 def _radial_inverse(camera: Camera, xy_d: np.ndarray) -> np.ndarray:
     """A purely radial lens inverted along its radius, for the points OpenCV's fixed-point
     iteration does not bring back (it diverges where the barrel is strong: COLMAP's RADIAL
-    estimate for C3VD, k1 -0.257 and k2 0.035 at 191 px, from 225 px out). The lens's image
-    radius is tabulated up to where it first stops growing; a radius past that peak has no
-    ray and keeps the iteration's answer, which the caller can tell by re-distorting it."""
+    estimate for C3VD, k1 -0.257 and k2 0.035 at 191 px, from 225 px out). A radius past the
+    lens's peak has no ray and keeps the iteration's answer, which the caller can tell by
+    re-distorting it."""
+    image_r, ru = _radial_table(camera.model, tuple(float(c) for c in camera.dist or []))
     rd = np.hypot(xy_d[..., 0], xy_d[..., 1])
-    if camera.model == "fisheye":
-        theta = np.linspace(0.0, np.pi / 2 - 1e-3, 200_001)
-        ru = np.tan(theta)
-    else:
-        ru = np.linspace(0.0, 20.0, 200_001)
-    image_r = np.hypot(*np.moveaxis(distort_normalised(camera, np.stack([ru, 0 * ru], -1)), -1, 0))
-    falls = np.nonzero(np.diff(image_r) <= 0)[0]
-    end = int(falls[0]) + 1 if len(falls) else len(ru)
-    r = np.interp(rd, image_r[:end], ru[:end], right=np.nan)
+    r = np.interp(rd, image_r, ru, right=np.nan)
     scale = np.where(rd > 1e-12, r / np.maximum(rd, 1e-12), 1.0)
     out = xy_d * scale[..., None]
     reachable = np.isfinite(out).all(-1)
     return np.where(reachable[..., None], out, xy_d)
+
+
+@lru_cache(maxsize=8)
+def _radial_table(model: str, dist: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The lens's image radius against the ideal one, tabulated up to where it first stops
+    growing (made once per lens: every frame's rays ask for it)."""
+    lens = Camera(width=1, height=1, fx=1.0, fy=1.0, cx=0.0, cy=0.0, model=model, dist=list(dist))
+    if model == "fisheye":
+        ru = np.tan(np.linspace(0.0, np.pi / 2 - 1e-3, 200_001))
+    else:
+        ru = np.linspace(0.0, 20.0, 200_001)
+    image_r = np.hypot(*np.moveaxis(distort_normalised(lens, np.stack([ru, 0 * ru], -1)), -1, 0))
+    falls = np.nonzero(np.diff(image_r) <= 0)[0]
+    end = int(falls[0]) + 1 if len(falls) else len(ru)
+    return image_r[:end], ru[:end]
 
 
 def project_camera(
