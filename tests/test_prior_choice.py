@@ -13,11 +13,18 @@ import numpy as np
 import torch
 
 from endopipe.stages.centerline.cavity import fit_cavity
-from endopipe.stages.centerline.choose import choose_prior, point_reach, score_prior
+from endopipe.stages.centerline.choose import (
+    choose_prior,
+    point_reach,
+    reaching_margin,
+    score_prior,
+)
 from endopipe.stages.centerline.config import CenterlineConfig
 from endopipe.stages.centerline.prior import FreePrior, LumenPrior
 from endopipe.stages.centerline.tube import fit_tube
+from endopipe.stages.nerf.bounds import PriorBounds
 from endopipe.stages.nerf.config import NerfConfig
+from endopipe.stages.nerf.scene import SceneBox
 from endopipe.stages.nerf.stage import weigh_prior
 
 CFG = CenterlineConfig()
@@ -118,6 +125,34 @@ def test_score_is_the_ratio_of_wall_exit_to_point_distance() -> None:
     far = o + 2 * (wall - o)
     s = score_prior(tube, o, far, 0.25)
     assert s.inlier_fraction < 0.05 and abs(s.median_ratio - 0.5) < 0.05
+
+
+def test_sampling_reaches_past_a_wall_that_fits_only_some_points(tmp_path: Path) -> None:
+    """A tube that predicts 70% of the points, the rest at 3x its wall (C3VD: a quarter of
+    the points lay beyond the inflated wall, and their rays ended short of them): the margin
+    that holds 90% of the points is about 2 (3x the wall); with every point on the wall it
+    is about 0, and it travels with the saved prior to the NeRF's bounds."""
+    rng = np.random.default_rng(3)
+    cams, views, pts = straight_tube(rng)
+    tube = _candidates(cams, views, pts)["tube"]
+    o = np.zeros((1000, 3)) + np.array([0, 0, 10.0])
+    phi = rng.uniform(0, 2 * np.pi, 1000)
+    wall = np.stack([10 * np.cos(phi), 10 * np.sin(phi), np.full(1000, 25.0)], 1)
+    assert reaching_margin(tube, o, wall, 0.9) < 0.02
+    seen = wall.copy()
+    seen[700:] = o[700:] + 3 * (wall[700:] - o[700:])
+    tube.margin = reaching_margin(tube, o, seen, 0.9)
+    assert abs(tube.margin - 2.0) < 0.05
+    tube.save(tmp_path / "prior.npz")
+    back = LumenPrior.load(tmp_path / "prior.npz")
+    assert back.margin == tube.margin
+    cfg = NerfConfig()
+    box = SceneBox(np.zeros(3), np.eye(3), 1.0, np.full(3, -100.0), np.full(3, 100.0))
+    pb = PriorBounds(back, box, cfg)
+    assert pb.margin == back.margin > cfg.sampling.bounds_margin
+    d = torch.tensor(seen[700:710] - o[700:710], dtype=torch.float32)
+    _, far, _ = pb.bounds(torch.tensor(o[700:710], dtype=torch.float32), d, pb.margin)
+    assert (far >= 0.99).all()  # every such ray is sampled out to its point (t = 1)
 
 
 def test_reach_is_per_frame_and_free_prior_rays_reach_it(tmp_path: Path) -> None:

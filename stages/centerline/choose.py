@@ -45,23 +45,39 @@ def score_prior(
     ratio lies within [1 / (1 + tolerance), 1 + tolerance]. Judged along the rays (what
     the NeRF's bounds and L_prior act on) and as a ratio, so candidates of any size compare
     fairly."""
-    o = np.asarray(origins, np.float64).reshape(-1, 3)
-    x = np.asarray(points, np.float64).reshape(-1, 3)
-    dist = np.linalg.norm(x - o, axis=1)
-    ok = dist > 1e-9
-    if not ok.any():
+    ratio = exit_ratios(prior, origins, points)
+    if not len(ratio):
         return PriorScore(kind=prior.kind, inlier_fraction=0.0, median_ratio=float("nan"))
-    o, x, dist = o[ok], x[ok], dist[ok]
-    d = (x - o) / dist[:, None]
-    cap = 1e3 * float(dist.max())
-    _, far = prior.ray_bounds(o, d, margin=0.0, max_far=cap, near_fraction=1e-6)
-    ratio = far.double().numpy() / dist
     band = np.log1p(tolerance)
     return PriorScore(
         kind=prior.kind,
         inlier_fraction=float(np.mean(np.abs(np.log(np.maximum(ratio, 1e-9))) <= band)),
         median_ratio=float(np.median(ratio)),
     )
+
+
+def exit_ratios(prior: LumenPrior, origins: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Per camera-to-point ray: where it leaves the prior's wall / how far the point is."""
+    o = np.asarray(origins, np.float64).reshape(-1, 3)
+    x = np.asarray(points, np.float64).reshape(-1, 3)
+    dist = np.linalg.norm(x - o, axis=1)
+    ok = dist > 1e-9
+    o, x, dist = o[ok], x[ok], dist[ok]
+    if not len(dist):
+        return dist
+    d = (x - o) / dist[:, None]
+    cap = 1e3 * float(dist.max())
+    _, far = prior.ray_bounds(o, d, margin=0.0, max_far=cap, near_fraction=1e-6)
+    return far.double().numpy() / dist
+
+
+def reaching_margin(prior: LumenPrior, origins: np.ndarray, points: np.ndarray, share: float):
+    """The least m such that the wall inflated by (1 + m) holds `share` of the points the
+    cameras saw, measured along their rays (0 when the wall already does)."""
+    ratio = exit_ratios(prior, origins, points)
+    if not len(ratio):
+        return 0.0
+    return max(0.0, 1.0 / max(float(np.quantile(ratio, 1.0 - share)), 1e-6) - 1.0)
 
 
 def choose_prior(

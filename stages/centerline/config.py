@@ -44,6 +44,14 @@ class CenterlineConfig(StageConfig):
         description="Rays reach this multiple of the farthest SfM points the cameras saw "
         "(98th percentile per frame).",
     )
+    reach_share: float = Field(
+        0.9,
+        gt=0,
+        lt=1,
+        description="A chosen prior's rays are sampled past its wall until they reach this "
+        "share of the SfM points the cameras saw (the wall inflated by the least margin that "
+        "holds them, never less than nerf.sampling.bounds_margin).",
+    )
     free_scale: float = Field(
         0.3,
         gt=0,

@@ -55,6 +55,10 @@ class LumenPrior:
     #: badly takes it from the shape that fits (the cavity preset's ellipsoid around a colon is
     #: 2.4x the tube, and grids sized by it were too coarse for the colon's walls)
     unit: float | None = None
+    #: how far past the wall sampling must look to reach the SfM points (the wall inflated by
+    #: 1 + margin holds `reach_share` of them; 0: unknown). A wall that fits half of C3VD's
+    #: points ended a quarter of its rays short of the point they saw.
+    margin: float = 0.0
 
     # --- interface ------------------------------------------------------------------------
     def signed_distance(self, x: Tensorish) -> torch.Tensor:
@@ -111,6 +115,8 @@ class LumenPrior:
             arrays["reach"] = np.array(self.reach)
         if self.unit is not None:
             arrays["unit"] = np.array(self.unit)
+        if self.margin:
+            arrays["margin"] = np.array(self.margin)
         arrays.update(self._arrays())
         with open(path, "wb") as fh:  # np.savez would append ".npz" to a path without it
             np.savez(fh, **arrays)
@@ -145,6 +151,7 @@ class LumenPrior:
             prior.reach = float(data["reach"])
         if "unit" in data:
             prior.unit = float(data["unit"])
+        prior.margin = float(data.get("margin", 0.0))
         return prior
 
     def to(self, device: str | torch.device) -> LumenPrior:

@@ -19,7 +19,12 @@ import numpy as np
 from endopipe.pipeline.errors import StageFailed
 from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
 from endopipe.stages.centerline.cavity import fit_cavity
-from endopipe.stages.centerline.choose import PriorScore, choose_prior, point_reach
+from endopipe.stages.centerline.choose import (
+    PriorScore,
+    choose_prior,
+    point_reach,
+    reaching_margin,
+)
 from endopipe.stages.centerline.config import CenterlineConfig
 from endopipe.stages.centerline.evaluate import compare_to_truth
 from endopipe.stages.centerline.plot import plot_centerline
@@ -43,6 +48,7 @@ class CenterlineSummary(Summary):
     prior_weight: float = 1.0
     prior_scores: list[PriorScore] = []
     reach: float | None = None
+    wall_margin: float = 0.0  # sampling reaches (1 + wall_margin) x the prior's wall
     length: float
     mean_radius: float
     radius_source: str
@@ -61,7 +67,7 @@ class Centerline(Stage):
 
     name = "centerline"
     needs = ("ingest", "poses")
-    version = 4  # 4: a forced prior that fits badly takes the scene unit of the shape that fits
+    version = 5  # 5: the wall margin that reaches the SfM points (prior.npz `margin`)
     Config = CenterlineConfig
 
     @classmethod
@@ -113,6 +119,11 @@ class Centerline(Stage):
             prior.reach = reach
             if choice.scale_from is not None:
                 prior.unit = candidates[choice.scale_from].typical_radius
+            prior.margin = reaching_margin(prior, origins, seen, cfg.reach_share)
+            ctx.log(
+                f"{choice.kind}: {100 * cfg.reach_share:.0f}% of the SfM points lie within "
+                f"{1 + prior.margin:.2f}x its wall (rays are sampled at least that far)"
+            )
         prior.save(ctx.out / PRIOR_FILE)
         file = fit.to_file(units).model_dump(mode="json", exclude_none=True)
         file["kind"] = choice.kind
@@ -136,6 +147,7 @@ class Centerline(Stage):
             prior_weight=prior.weight,
             prior_scores=choice.scores,
             reach=reach,
+            wall_margin=prior.margin,
             length=fit.length,
             mean_radius=prior.own_radius if prior.kind != "tube" else float(np.mean(fit.radius)),
             radius_source=fit.radius_source,

@@ -17,6 +17,8 @@ class PriorBounds:
     def __init__(self, prior, box: SceneBox, cfg: NerfConfig) -> None:
         self.prior, self.box, self.cfg = prior, box, cfg
         self.max_far = cfg.sampling.far_radii * float(prior.typical_radius)
+        # Sampling looks past the wall far enough to reach the points the cameras saw.
+        self.margin = max(cfg.sampling.bounds_margin, float(prior.margin))
 
     def _world_rays(self, o: torch.Tensor, d: torch.Tensor):
         rot = torch.as_tensor(self.box.rotation, dtype=d.dtype, device=d.device)
@@ -81,7 +83,6 @@ def scene_bounds(model: NerfModel, prior, o: torch.Tensor, d: torch.Tensor):
     """near / far (scene depth) of scene-frame rays: from the prior, else from the box."""
     if prior is None:
         return model.box.ray_bounds(o, d, model.cfg.sampling.near_fraction)
-    near, far, _ = PriorBounds(prior, model.box, model.cfg).bounds(
-        o, d, model.cfg.sampling.bounds_margin
-    )
+    pb = PriorBounds(prior, model.box, model.cfg)
+    near, far, _ = pb.bounds(o, d, pb.margin)
     return near, far

@@ -62,7 +62,7 @@ def fit_box(c2w: list[np.ndarray], camera: Camera, hw: tuple[int, int], prior, c
     for c in c2w:
         cs = torch.tensor(box0.c2w_to_scene(c), dtype=torch.float32)
         o, d = pixel_rays(camera, cs, u, v)
-        _, far, _ = pb.bounds(o, d, cfg.sampling.bounds_margin, wall=True, past_points=True)
+        _, far, _ = pb.bounds(o, d, pb.margin, wall=True, past_points=True)
         pts.append(box0.scene_to_world_np((o + far[:, None] * d).numpy()))
     f = cfg.field
     return SceneBox.fit(

@@ -216,7 +216,7 @@ class Trainer:
         self.frames.refining = self.correction is not None and (progress >= cfg.pose_refine.start)
         b = self.sampler.sample()
         o, d = self.frames.rays(b.frame, b.u, b.v)
-        near, far, _ = self.pb.bounds(o, d, cfg.sampling.bounds_margin)
+        near, far, _ = self.pb.bounds(o, d, self.pb.margin)
         warm = cfg.shading.normal_warmup
         mix = 1.0 if warm <= 0 else min(1.0, progress / warm)
         patches = b.n_patches * b.patch * b.patch
@@ -315,7 +315,7 @@ class Trainer:
 
     def _depth(self, o: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
         """Rendered depth of extra rays (density only, jittered, with gradients)."""
-        near, far, _ = self.pb.bounds(o, d, self.cfg.sampling.bounds_margin)
+        near, far, _ = self.pb.bounds(o, d, self.pb.margin)
         out = self.model.render_rays(
             o, d, near, far, jitter=True, gen=self.gen, colour=False, normals=False
         )
@@ -360,7 +360,7 @@ class Trainer:
             for _ in range(pc.heldout_steps):
                 b = sampler.sample()
                 o, d = self.frames.rays(b.frame, b.u, b.v)
-                near, far, _ = self.pb.bounds(o, d, self.cfg.sampling.bounds_margin)
+                near, far, _ = self.pb.bounds(o, d, self.pb.margin)
                 out = self.model.render_rays(
                     o, d, near, far, frame=b.frame, jitter=True, gen=self.gen, colour=True
                 )
