@@ -75,7 +75,9 @@ def test_full_report_shows_what_the_stages_wrote(tiny_case: Path) -> None:
     cameras = read(tiny_case, "poses", "cameras.json")
     poses = Manifest.load(folders_of(tiny_case)["poses"]).summary
     registered = sum(f["registered"] for f in cameras["frames"])
+    wall = Manifest.load(folders_of(tiny_case)["centerline"]).summary["wall_margin"]
     for label, shown in (
+        ("sampled past the prior's wall", f"{1 + wall:.2f}x the wall"),
         ("AbsRel, median scaling", fmt(depth["median_scaled"]["abs_rel"])),
         ("AbsRel, one scale", fmt(depth["sequence_scaled"]["abs_rel"])),
         ("δ1", fmt(depth["median_scaled"]["delta1"])),

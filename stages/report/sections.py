@@ -389,6 +389,10 @@ def section_poses(data: CaseData, info: Any) -> str | None:
             ("Rays reach", fmt(cl.get("reach"), u)),
         ]
         if kind != "none":
+            if cl.get("wall_margin"):
+                margin = float(cl["wall_margin"])
+                reach_wall = f"{1 + margin:.2f}x the wall (centerline.reach_share)"
+                rows.append(("Most SfM points lie within", text(reach_wall)))
             rows += [
                 ("Centre line length", fmt(cl.get("length"), u)),
                 ("Mean radius", fmt(cl.get("mean_radius"), u)),
