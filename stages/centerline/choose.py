@@ -71,7 +71,9 @@ def exit_ratios(prior: LumenPrior, origins: np.ndarray, points: np.ndarray) -> n
     return far.double().numpy() / dist
 
 
-def reaching_margin(prior: LumenPrior, origins: np.ndarray, points: np.ndarray, share: float):
+def reaching_margin(
+    prior: LumenPrior, origins: np.ndarray, points: np.ndarray, share: float
+) -> float:
     """The least m such that the wall inflated by (1 + m) holds `share` of the points the
     cameras saw, measured along their rays (0 when the wall already does)."""
     ratio = exit_ratios(prior, origins, points)

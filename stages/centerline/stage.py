@@ -48,7 +48,7 @@ class CenterlineSummary(Summary):
     prior_weight: float = 1.0
     prior_scores: list[PriorScore] = []
     reach: float | None = None
-    wall_margin: float = 0.0  # sampling reaches (1 + wall_margin) x the prior's wall
+    wall_margin: float = 0.0  # reach_share of the SfM points lie within (1 + it) x the wall
     length: float
     mean_radius: float
     radius_source: str
