@@ -112,15 +112,21 @@ def test_auto_uses_no_prior_when_none_fits_and_a_forced_one_has_its_full_weight(
     assert "set by the config" in forced.reason and "tube" in forced.reason
 
 
+def _tube_and_wall_rays(seed: int, n: int):
+    """The fitted straight tube (radius 10) and n rays from a point on its axis to its wall."""
+    rng = np.random.default_rng(seed)
+    cams, views, pts = straight_tube(rng)
+    tube = _candidates(cams, views, pts)["tube"]
+    o = np.zeros((n, 3)) + np.array([0, 0, 10.0])
+    phi = rng.uniform(0, 2 * np.pi, n)
+    wall = np.stack([10 * np.cos(phi), 10 * np.sin(phi), np.full(n, 25.0)], 1)
+    return tube, o, wall
+
+
 def test_score_is_the_ratio_of_wall_exit_to_point_distance() -> None:
     """A tube of radius 10 seen from its axis: points on the wall score 1, points at twice the
     distance score a median ratio of 0.5 and no inliers."""
-    rng = np.random.default_rng(2)
-    cams, views, pts = straight_tube(rng)
-    tube = _candidates(cams, views, pts)["tube"]
-    o = np.zeros((500, 3)) + np.array([0, 0, 10.0])
-    phi = rng.uniform(0, 2 * np.pi, 500)
-    wall = np.stack([10 * np.cos(phi), 10 * np.sin(phi), np.full(500, 25.0)], 1)
+    tube, o, wall = _tube_and_wall_rays(2, 500)
     assert score_prior(tube, o, wall, 0.25).inlier_fraction > 0.95
     far = o + 2 * (wall - o)
     s = score_prior(tube, o, far, 0.25)
@@ -132,12 +138,7 @@ def test_sampling_reaches_past_a_wall_that_fits_only_some_points(tmp_path: Path)
     the points lay beyond the inflated wall, and their rays ended short of them): the margin
     that holds 90% of the points is about 2 (3x the wall); with every point on the wall it
     is about 0, and it travels with the saved prior to the NeRF's bounds."""
-    rng = np.random.default_rng(3)
-    cams, views, pts = straight_tube(rng)
-    tube = _candidates(cams, views, pts)["tube"]
-    o = np.zeros((1000, 3)) + np.array([0, 0, 10.0])
-    phi = rng.uniform(0, 2 * np.pi, 1000)
-    wall = np.stack([10 * np.cos(phi), 10 * np.sin(phi), np.full(1000, 25.0)], 1)
+    tube, o, wall = _tube_and_wall_rays(3, 1000)
     assert reaching_margin(tube, o, wall, 0.9) < 0.02
     seen = wall.copy()
     seen[700:] = o[700:] + 3 * (wall[700:] - o[700:])
