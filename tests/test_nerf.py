@@ -27,7 +27,7 @@ from endopipe.stages.nerf.model import NEW_KEYS, NerfModel
 from endopipe.stages.nerf.render import density_grid, load_model, render_image, save_model
 from endopipe.stages.nerf.sampling import composite, sample_pdf, spaced
 from endopipe.stages.nerf.scene import SceneBox
-from endopipe.stages.nerf.stage import fit_box
+from endopipe.stages.nerf.stage import fit_box, regularise_far_view
 from endopipe.stages.nerf.train import Trainer
 
 RADIUS = 10.0
@@ -292,6 +292,32 @@ def test_scene_box_warp_is_monotonic_and_identity_in_core():
     k = Camera(width=11, height=11, fx=10.0, fy=10.0, cx=5.0, cy=5.0)
     o, d = pixel_rays(k, torch.eye(4), torch.tensor([5.0]), torch.tensor([5.0]))
     assert torch.allclose(d, torch.tensor([[0.0, 0.0, 1.0]]))
+
+
+def test_grid_warp_auto_follows_where_the_sfm_points_lie():
+    """The warp spends the grid near the camera path: kept when the SfM points lie there, off
+    when they lie far down the tube (C3VD: 14% near its short path; warped, it lost detail)."""
+    k, poses, prior = intrinsics(), tube_poses(10), tube_prior()
+    theta = np.linspace(0, 2 * np.pi, 40)
+
+    def wall(z0: float, z1: float) -> np.ndarray:
+        t, z = np.meshgrid(theta, np.linspace(z0, z1, 10))
+        return np.stack([RADIUS * np.cos(t), RADIUS * np.sin(t), z], -1).reshape(-1, 3)
+
+    cfg = tiny_config()
+    assert cfg.field.warp == "auto"
+    assert fit_box(poses, k, (H, W), prior, cfg, wall(2, 13)).warped
+    assert not fit_box(poses, k, (H, W), prior, cfg, wall(40, 60)).warped
+    assert fit_box(poses, k, (H, W), prior, cfg).warped  # no SfM points: the warp stays
+    far = regularise_far_view(cfg, fit_box(poses, k, (H, W), prior, cfg, wall(40, 60)), print)
+    assert far.field.tensorf.tv_weight == cfg.far_view.tv_weight > 0
+    assert far.loss.distortion_weight == cfg.far_view.distortion_weight > 0
+    near = regularise_far_view(cfg, fit_box(poses, k, (H, W), prior, cfg, wall(2, 13)), print)
+    assert near.field.tensorf.tv_weight == 0 and near.loss.distortion_weight == 0
+    cfg.field.warp = True
+    assert fit_box(poses, k, (H, W), prior, cfg, wall(40, 60)).warped
+    cfg.field.warp = False
+    assert not fit_box(poses, k, (H, W), prior, cfg, wall(2, 13)).warped
 
 
 def test_paper_preset_trains_with_coarse_and_fine_passes(tmp_path):

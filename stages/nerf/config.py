@@ -85,10 +85,18 @@ class FieldConfig(_Section):
     positional: PositionalConfig = Field(
         default_factory=PositionalConfig, description="Positional-encoding MLP."
     )
-    warp: bool = Field(
-        True,
+    warp: bool | Literal["auto"] = Field(
+        "auto",
         description="Warp the grid per axis: linear around the camera path, logarithmic "
-        "beyond, so cells grow with the distance to the cameras.",
+        "beyond, so cells grow with the distance to the cameras. auto: warp only when the "
+        "cameras saw their surface near their path (warp_min_inside of the SfM points in the "
+        "linear core); a scope that barely moves and looks far would lose what it saw.",
+    )
+    warp_min_inside: float = Field(
+        0.5,
+        ge=0,
+        le=1,
+        description="auto: warp when at least this share of the SfM points lies in the core.",
     )
     warp_core_pad: float = Field(
         1.5, ge=0, description="Linear core: the camera path's box grown by this many radii."
@@ -391,6 +399,19 @@ class PoseRefineConfig(_Section):
         return value
 
 
+class FarViewConfig(_Section):
+    """Regularisers added when `field.warp: auto` leaves the grid unwarped (a scope that looks
+    far): its far cells are then as fine as the near ones and each is seen by few pixels, so
+    these take the place of the smoothing that growing cells gave (C3VD, README)."""
+
+    tv_weight: float = Field(
+        0.3, ge=0, description="Total-variation penalty on the density planes (at least this)."
+    )
+    distortion_weight: float = Field(
+        0.01, ge=0, description="Distortion loss, one surface per ray (at least this)."
+    )
+
+
 class NerfConfig(StageConfig):
     field: FieldConfig = Field(default_factory=FieldConfig, description="The radiance field.")
     shading: ShadingConfig = Field(default_factory=ShadingConfig, description="Near-light model.")
@@ -399,6 +420,10 @@ class NerfConfig(StageConfig):
     train: TrainConfig = Field(default_factory=TrainConfig, description="Training.")
     pose_refine: PoseRefineConfig = Field(
         default_factory=PoseRefineConfig, description="Joint camera pose refinement."
+    )
+    far_view: FarViewConfig = Field(
+        default_factory=FarViewConfig,
+        description="Added regularisers when field.warp: auto leaves the grid unwarped.",
     )
 
 
@@ -409,6 +434,7 @@ PAPER_PRESET: dict = {
         "positional": {"depth": 8, "width": 256, "skip": 4, "pos_bands": 10},
         "view_dependent": True,
         "dir_bands": 4,
+        "warp": False,
     },
     "sampling": {"sampler": "coarse_fine", "n_coarse": 64, "n_fine": 128, "spacing": "linear"},
     "train": {"steps": 200000, "time_budget_s": None, "lr_mlp": 5e-4, "lr_decay": 0.1},

@@ -73,6 +73,18 @@ class SceneBox:
         """Size of the box in warped units (= scene units inside the core)."""
         return self.warp_np(self.hi) - self.warp_np(self.lo)
 
+    @property
+    def warped(self) -> bool:
+        """Whether the grid is warped anywhere (the core is smaller than the box)."""
+        return bool(np.any(self.core_lo > self.lo) or np.any(self.core_hi < self.hi))
+
+    def core_share(self, points: np.ndarray | None) -> float | None:
+        """Share of `points` (world) inside the linear core; None without points."""
+        if points is None or len(points) == 0:
+            return None
+        x = self.world_to_scene_np(np.asarray(points, np.float64).reshape(-1, 3))
+        return float(np.all((x >= self.core_lo) & (x <= self.core_hi), axis=1).mean())
+
     def warp_np(self, x: np.ndarray) -> np.ndarray:
         a, b, k = self.core_lo, self.core_hi, self.soft
         x = np.asarray(x, np.float64)
