@@ -312,8 +312,17 @@ def test_grid_warp_auto_follows_where_the_sfm_points_lie():
     far = regularise_far_view(cfg, fit_box(poses, k, (H, W), prior, cfg, wall(40, 60)), print)
     assert far.field.tensorf.tv_weight == cfg.far_view.tv_weight > 0
     assert far.loss.distortion_weight == cfg.far_view.distortion_weight > 0
+    assert far.field.tensorf.res_final == min(40, cfg.far_view.res_final or 40)
     near = regularise_far_view(cfg, fit_box(poses, k, (H, W), prior, cfg, wall(2, 13)), print)
     assert near.field.tensorf.tv_weight == 0 and near.loss.distortion_weight == 0
+    cfg.far_view.res_final = 32  # a coarser unwarped grid; never under res_init (24)
+    far = regularise_far_view(cfg, fit_box(poses, k, (H, W), prior, cfg, wall(40, 60)), print)
+    assert far.field.tensorf.res_final == 32
+    cfg.far_view.res_final = 16
+    far = regularise_far_view(cfg, fit_box(poses, k, (H, W), prior, cfg, wall(40, 60)), print)
+    assert far.field.tensorf.res_final == 24
+    near = regularise_far_view(cfg, fit_box(poses, k, (H, W), prior, cfg, wall(2, 13)), print)
+    assert near.field.tensorf.res_final == 40
     cfg.field.warp = True
     assert fit_box(poses, k, (H, W), prior, cfg, wall(40, 60)).warped
     cfg.field.warp = False

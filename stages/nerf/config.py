@@ -402,13 +402,19 @@ class PoseRefineConfig(_Section):
 class FarViewConfig(_Section):
     """Regularisers added when `field.warp: auto` leaves the grid unwarped (a scope that looks
     far): its far cells are then as fine as the near ones and each is seen by few pixels, so
-    these take the place of the smoothing that growing cells gave (C3VD, README)."""
+    these and a coarser grid take the place of the smoothing that growing cells gave (C3VD:
+    at 384 nodes a plane of the grid showed as a crease down the near wall; README)."""
 
     tv_weight: float = Field(
-        0.3, ge=0, description="Total-variation penalty on the density planes (at least this)."
+        1.0, ge=0, description="Total-variation penalty on the density planes (at least this)."
     )
     distortion_weight: float = Field(
         0.01, ge=0, description="Distortion loss, one surface per ray (at least this)."
+    )
+    res_final: int | None = Field(
+        192,
+        ge=8,
+        description="Grid nodes along the longest side at most (None: field.tensorf.res_final).",
     )
 
 
@@ -423,7 +429,8 @@ class NerfConfig(StageConfig):
     )
     far_view: FarViewConfig = Field(
         default_factory=FarViewConfig,
-        description="Added regularisers when field.warp: auto leaves the grid unwarped.",
+        description="Added regularisers and a coarser grid when field.warp: auto leaves the grid "
+        "unwarped.",
     )
 
 

@@ -106,10 +106,16 @@ def regularise_far_view(cfg: NerfConfig, box: SceneBox, log) -> NerfConfig:
     fv = cfg.far_view
     tv = max(cfg.field.tensorf.tv_weight, fv.tv_weight)
     distortion = max(cfg.loss.distortion_weight, fv.distortion_weight)
-    tensorf = cfg.field.tensorf.model_copy(update={"tv_weight": tv})
+    res = cfg.field.tensorf.res_final
+    if fv.res_final is not None:
+        res = max(min(res, fv.res_final), cfg.field.tensorf.res_init)
+    tensorf = cfg.field.tensorf.model_copy(update={"tv_weight": tv, "res_final": res})
     field = cfg.field.model_copy(update={"tensorf": tensorf})
     loss = cfg.loss.model_copy(update={"distortion_weight": distortion})
-    log(f"unwarped grid: density TV {tv:g}, distortion loss {distortion:g} (nerf.far_view)")
+    log(
+        f"unwarped grid: density TV {tv:g}, distortion loss {distortion:g}, {res} nodes along "
+        "the longest side (nerf.far_view)"
+    )
     return cfg.model_copy(update={"field": field, "loss": loss})
 
 
