@@ -51,6 +51,13 @@ class VerdictConfig(BaseModel):
         "% of the path, after a similarity) make the sequence doubtful; a frame this far from "
         "the other mapper's is doubtful.",
     )
+    max_focal_ratio: float = Field(
+        1.25,
+        gt=1,
+        description="Two mappers that both look sound but whose self-calibrated focal lengths "
+        "differ by more than this factor make the sequence doubtful, and the other mapper is "
+        "not offered as the alternative.",
+    )
     max_doubtful_frames: float = Field(
         0.2, ge=0, le=1, description="A sequence with a larger share of doubtful frames is."
     )

@@ -33,6 +33,7 @@ class FrameEvidence:
     points: np.ndarray  # (N,) observations with a triangulated point
     reprojection_px: np.ndarray  # (N,) mean reprojection error of those (nan: none)
     median_depth: np.ndarray  # (N,) median camera-z of those points (nan: none)
+    focal_px: float | None = None  # the shared camera's mean focal length (None: not known)
 
     @property
     def centres(self) -> np.ndarray:
@@ -60,12 +61,14 @@ def evidence_from_reconstruction(rec, index_of: dict[str, int]) -> FrameEvidence
         depth = float(np.median(z[:, 2])) if len(ids) else np.nan
         rows.append((index_of[image.name], np.linalg.inv(w2c), len(ids), error, depth))
     rows.sort(key=lambda r: r[0])
+    cameras = list(rec.cameras.values())
     return FrameEvidence(
         index=np.array([r[0] for r in rows], dtype=np.int64),
         c2w=np.array([r[1] for r in rows]).reshape(-1, 4, 4),
         points=np.array([r[2] for r in rows], dtype=np.int64),
         reprojection_px=np.array([r[3] for r in rows], dtype=np.float64),
         median_depth=np.array([r[4] for r in rows], dtype=np.float64),
+        focal_px=float(cameras[0].mean_focal_length()) if len(cameras) == 1 else None,
     )
 
 
@@ -249,7 +252,15 @@ def pick_mapper(
     for m in ranked[1:]:
         gap, _ = compare_paths(evidence[kept], evidence[m])  # type: ignore[arg-type]
         apart = "" if gap is None else f"; {gap:.1f}% of the path from the kept poses"
-        if alone[m].status == "ok":
+        lenses = lens_disagreement(evidence[kept], evidence[m], cfg)  # type: ignore[arg-type]
+        if alone[m].status == "ok" and lenses is not None:
+            verdict.others[m] = f"another lens ({lenses}), sound otherwise{apart}"
+            verdict.reasons.append(
+                f"the two mappers' lenses disagree ({lenses}): the footage does not fix the "
+                "lens; --intrinsics FILE gives it"
+            )
+            verdict.status = "doubtful"
+        elif alone[m].status == "ok":
             verdict.others[m] = f"{SOUND}{apart}"
         else:
             verdict.others[m] = f"doubtful: {'; '.join(alone[m].reasons)}{apart}"
@@ -258,6 +269,18 @@ def pick_mapper(
     for m, why in failures.items():
         verdict.others[m] = f"no model: {why}"
     return verdict
+
+
+def lens_disagreement(kept: FrameEvidence, other: FrameEvidence, cfg: VerdictConfig) -> str | None:
+    """How two mappers' self-calibrated focal lengths differ, in words, when their ratio is
+    over `max_focal_ratio`; else None. Why: on C3VD the incremental mapper, sound by every
+    other test, settled at 413 px against the global mapper's 156 (25 against 46 degrees at
+    half the frame height; the scope's calibration says 45), and its depth ranked pixels worse
+    than the radial guess (README, stop 26). Paths can agree while lenses do not."""
+    a, b = kept.focal_px, other.focal_px
+    if a is None or b is None or min(a, b) <= 0 or max(a, b) / min(a, b) <= cfg.max_focal_ratio:
+        return None
+    return f"f {a:.0f} px kept against {b:.0f} px, {max(a, b) / min(a, b):.2f}x"
 
 
 def ranges(indices: list[int]) -> str:
