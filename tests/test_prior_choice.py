@@ -15,6 +15,7 @@ import torch
 from endopipe.stages.centerline.cavity import fit_cavity
 from endopipe.stages.centerline.choose import (
     choose_prior,
+    empty_core,
     point_reach,
     reaching_margin,
     score_prior,
@@ -154,6 +155,31 @@ def test_sampling_reaches_past_a_wall_that_fits_only_some_points(tmp_path: Path)
     d = torch.tensor(seen[700:710] - o[700:710], dtype=torch.float32)
     _, far, _ = pb.bounds(torch.tensor(o[700:710], dtype=torch.float32), d, pb.margin)
     assert (far >= 0.99).all()  # every such ray is sampled out to its point (t = 1)
+
+
+def test_the_empty_core_shrinks_to_leave_out_tissue_the_points_place_inside_it(
+    tmp_path: Path,
+) -> None:
+    """Points on the wall leave the whole core empty (limit about 1). With 8% of them at 0.3 of the
+    radius from the axis (C3VD: 8% of its observations lay in the tube's half-radius core,
+    where a fold juts into the lumen) the core L_prior empties must stay narrower than 0.3;
+    the limit travels with the saved prior and bounds the NeRF's core."""
+    tube, _, wall = _tube_and_wall_rays(4, 1000)
+    radius = float(np.median(tube.radius_at(torch.as_tensor(wall, dtype=torch.float32))))
+    assert empty_core(tube, wall, 0.02) > 0.9  # the fitted wall: about the true one
+    pts = wall.copy()
+    inner = pts[:80].copy()
+    inner[:, :2] *= 0.3 * radius / np.linalg.norm(inner[:, :2], axis=1, keepdims=True)
+    pts[:80] = inner
+    limit = empty_core(tube, pts, 0.02)
+    assert 0.2 < limit < 0.3, limit
+    assert (
+        float(tube.in_core(torch.as_tensor(pts, dtype=torch.float32), limit).float().mean()) <= 0.02
+    )
+    tube.core_limit = limit
+    tube.save(tmp_path / "prior.npz")
+    assert LumenPrior.load(tmp_path / "prior.npz").core_limit == limit
+    assert empty_core(tube, pts, 0.1) > 0.9  # a tolerance above the 8% inside
 
 
 def test_reach_is_per_frame_and_free_prior_rays_reach_it(tmp_path: Path) -> None:

@@ -12,6 +12,7 @@ it, no prior (weight 0) and ray bounds from the points alone.
 from __future__ import annotations
 
 import numpy as np
+import torch
 from pydantic import BaseModel
 
 from endopipe.stages.centerline.prior import LumenPrior
@@ -80,6 +81,28 @@ def reaching_margin(
     if not len(ratio):
         return 0.0
     return max(0.0, 1.0 / max(float(np.quantile(ratio, 1.0 - share)), 1e-6) - 1.0)
+
+
+def empty_core(prior: LumenPrior, points: np.ndarray, share: float, iters: int = 12) -> float:
+    """The widest core fraction f (`prior.in_core(x, f)`) that holds at most `share` of the
+    points (bisection: the share inside grows with f). L_prior wants the core empty; where
+    the points say tissue lies in it, a full-width core erases that tissue. Measured on C3VD,
+    whose tube follows a scope sliding across its view: 8.2% of the observations lay in the
+    half-radius core, 1.8% in a quarter-radius one; the bench colon's: 1.6%."""
+    x = torch.as_tensor(np.asarray(points, np.float64).reshape(-1, 3), dtype=torch.float32)
+    if not len(x):
+        return 1.0
+
+    def inside(f: float) -> float:
+        return float(prior.in_core(x, f).float().mean())
+
+    if inside(1.0) <= share:
+        return 1.0
+    lo, hi = 0.0, 1.0
+    for _ in range(iters):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if inside(mid) <= share else (lo, mid)
+    return lo
 
 
 def choose_prior(

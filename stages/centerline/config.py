@@ -52,6 +52,14 @@ class CenterlineConfig(StageConfig):
         "share of the SfM points the cameras saw (the wall inflated by the least margin that "
         "holds them, never less than nerf.sampling.bounds_margin).",
     )
+    core_share: float = Field(
+        0.02,
+        ge=0,
+        lt=1,
+        description="A chosen prior's empty core (where L_prior penalises density) is shrunk "
+        "until at most this share of the SfM observations lie inside it (never wider than "
+        "nerf.loss.core_fraction).",
+    )
     free_scale: float = Field(
         0.3,
         gt=0,

@@ -59,6 +59,10 @@ class LumenPrior:
     #: 1 + margin holds `reach_share` of them; 0: unknown). A wall that fits half of C3VD's
     #: points ended a quarter of its rays short of the point they saw.
     margin: float = 0.0
+    #: the widest core (as a fraction of the wall, see `in_core`) the SfM points leave empty:
+    #: at most `core_share` of them inside (1: not measured, 0: none). C3VD's tube followed the
+    #: camera path, and 8% of the points lay in its half-radius core, where a fold juts in.
+    core_limit: float = 1.0
 
     # --- interface ------------------------------------------------------------------------
     def signed_distance(self, x: Tensorish) -> torch.Tensor:
@@ -117,6 +121,8 @@ class LumenPrior:
             arrays["unit"] = np.array(self.unit)
         if self.margin:
             arrays["margin"] = np.array(self.margin)
+        if self.core_limit < 1.0:
+            arrays["core_limit"] = np.array(self.core_limit)
         arrays.update(self._arrays())
         with open(path, "wb") as fh:  # np.savez would append ".npz" to a path without it
             np.savez(fh, **arrays)
@@ -152,6 +158,7 @@ class LumenPrior:
         if "unit" in data:
             prior.unit = float(data["unit"])
         prior.margin = float(data.get("margin", 0.0))
+        prior.core_limit = float(data.get("core_limit", 1.0))
         return prior
 
     def to(self, device: str | torch.device) -> LumenPrior:

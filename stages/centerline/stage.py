@@ -22,6 +22,7 @@ from endopipe.stages.centerline.cavity import fit_cavity
 from endopipe.stages.centerline.choose import (
     PriorScore,
     choose_prior,
+    empty_core,
     point_reach,
     reaching_margin,
 )
@@ -49,6 +50,7 @@ class CenterlineSummary(Summary):
     prior_scores: list[PriorScore] = []
     reach: float | None = None
     wall_margin: float = 0.0  # reach_share of the SfM points lie within (1 + it) x the wall
+    core_limit: float = 1.0  # the widest empty core the SfM points allow (fraction of the wall)
     length: float
     mean_radius: float
     radius_source: str
@@ -67,7 +69,7 @@ class Centerline(Stage):
 
     name = "centerline"
     needs = ("ingest", "poses")
-    version = 5  # 5: the wall margin that reaches the SfM points (prior.npz `margin`)
+    version = 6  # 6: the widest empty core the SfM points allow (prior.npz `core_limit`)
     Config = CenterlineConfig
 
     @classmethod
@@ -124,6 +126,13 @@ class Centerline(Stage):
                 f"{choice.kind}: {100 * cfg.reach_share:.0f}% of the SfM points lie within "
                 f"{1 + prior.margin:.2f}x its wall (rays are sampled at least that far)"
             )
+            prior.core_limit = empty_core(prior, seen, cfg.core_share)
+            if prior.core_limit < 1.0:
+                ctx.log(
+                    f"{choice.kind}: its empty core (L_prior) is at most "
+                    f"{prior.core_limit:.2f} of the wall wide: wider, it would hold over "
+                    f"{100 * cfg.core_share:.0f}% of the SfM observations"
+                )
         prior.save(ctx.out / PRIOR_FILE)
         file = fit.to_file(units).model_dump(mode="json", exclude_none=True)
         file["kind"] = choice.kind
@@ -148,6 +157,7 @@ class Centerline(Stage):
             prior_scores=choice.scores,
             reach=reach,
             wall_margin=prior.margin,
+            core_limit=prior.core_limit,
             length=fit.length,
             mean_radius=prior.own_radius if prior.kind != "tube" else float(np.mean(fit.radius)),
             radius_source=fit.radius_source,

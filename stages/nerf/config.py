@@ -252,7 +252,13 @@ class LossConfig(_Section):
         0.5, gt=0, le=1, description="Fraction of training over which lambda_1 decays to itself."
     )
     core_weight: float = Field(1.0, ge=0, description="Prior: density in the lumen core.")
-    core_fraction: float = Field(0.5, gt=0, lt=1, description="Core = wall shrunk to this.")
+    core_fraction: float = Field(
+        0.5,
+        gt=0,
+        lt=1,
+        description="Core = wall shrunk to this, or less where the SfM points lie inside it "
+        "(centerline.core_share).",
+    )
     core_reach: float = Field(
         4.0,
         gt=0,

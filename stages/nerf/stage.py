@@ -188,6 +188,7 @@ class NerfSummary(Summary):
     threads: int = 1
     pose_refine: dict | None = None  # ran, how far the cameras moved (pose_refine.record)
     grid_warp: bool | None = None  # the grid warped beyond the camera path (field.warp)
+    core_fraction: float | None = None  # L_prior's empty core used (fraction of the wall)
 
 
 class Nerf(Stage):
@@ -195,7 +196,7 @@ class Nerf(Stage):
 
     name = "nerf"
     needs = ("ingest", "poses", "centerline")
-    version = 3  # 3: not ended at the tube's extrapolated ends; trained where the lens reaches
+    version = 4  # 4: the empty core no wider than the SfM points allow (prior core_limit)
     Config = NerfConfig
     resumable = True
 
@@ -234,6 +235,11 @@ class Nerf(Stage):
         trainer = Trainer(
             cfg, frames, [pos[i] for i in train_ids], prior, box, ctx.out, ctx.log, sparse, refine
         )
+        if trainer.core_fraction < cfg.loss.core_fraction:
+            ctx.log(
+                f"L_prior's empty core: {trainer.core_fraction:.2f} of the wall (loss."
+                f"core_fraction {cfg.loss.core_fraction:g}; the SfM points lie inside a wider one)"
+            )
         resumed = trainer.try_resume()
         start = trainer.step_i
         if resumed:
@@ -276,6 +282,7 @@ class Nerf(Stage):
             threads=torch.get_num_threads(),
             pose_refine=pose_summary,
             grid_warp=box.warped,
+            core_fraction=trainer.core_fraction,
         )
 
 

@@ -105,6 +105,8 @@ class Trainer:
         torch.manual_seed(tc.seed)
         self.gen = torch.Generator(device=self.device).manual_seed(tc.seed)
         self.pb = PriorBounds(prior, box, cfg)
+        # The core L_prior keeps empty, no wider than the SfM points leave it.
+        self.core_fraction = min(cfg.loss.core_fraction, float(getattr(prior, "core_limit", 1.0)))
         gain = initial_gain(frames, train, self.pb, cfg.shading.gamma, self.gen)
         self.model = NerfModel(cfg, box, frames.n, gain=gain).to(self.device)
         self.model.set_trained_frames(train)
@@ -247,9 +249,9 @@ class Trainer:
                 progress, lc.prior_start, lc.prior_decay
             )
             prior = photo.new_zeros(())
-            if lc.core_weight > 0:
+            if lc.core_weight > 0 and self.core_fraction > 0:
                 x = o[:, None, :] + out["t"][..., None] * d[:, None, :]
-                inc = self.pb.in_core(x.reshape(-1, 3), lc.core_fraction).view(out["t"].shape)
+                inc = self.pb.in_core(x.reshape(-1, 3), self.core_fraction).view(out["t"].shape)
                 # Only near the cameras: the tube follows the camera path, far ahead it is a
                 # straight guess (scene units are lumen radii).
                 inc = inc & (out["t"] * d.norm(dim=-1, keepdim=True) <= lc.core_reach)

@@ -393,6 +393,9 @@ def section_poses(data: CaseData, info: Any) -> str | None:
                 margin = float(cl["wall_margin"])
                 reach_wall = f"{1 + margin:.2f}x the wall (centerline.reach_share)"
                 rows.append(("Most SfM points lie within", text(reach_wall)))
+            if cl.get("core_limit") is not None and float(cl["core_limit"]) < 1.0:
+                core = f"{float(cl['core_limit']):.2f} of the wall (centerline.core_share)"
+                rows.append(("Empty core at most", text(core)))
             rows += [
                 ("Centre line length", fmt(cl.get("length"), u)),
                 ("Mean radius", fmt(cl.get("mean_radius"), u)),
