@@ -106,7 +106,7 @@ class Trainer:
         self.gen = torch.Generator(device=self.device).manual_seed(tc.seed)
         self.pb = PriorBounds(prior, box, cfg)
         # The core L_prior keeps empty, no wider than the SfM points leave it.
-        self.core_fraction = min(cfg.loss.core_fraction, float(getattr(prior, "core_limit", 1.0)))
+        self.core_fraction = min(cfg.loss.core_fraction, prior.core_limit)
         gain = initial_gain(frames, train, self.pb, cfg.shading.gamma, self.gen)
         self.model = NerfModel(cfg, box, frames.n, gain=gain).to(self.device)
         self.model.set_trained_frames(train)
