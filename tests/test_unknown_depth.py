@@ -1,13 +1,17 @@
 """Honest unknowns (issue 14): a ray that meets no surface gets no depth (0), and only an
-explicit `depth.fill` gives it the prior's wall, which the mesh still never fuses."""
+explicit `depth.fill` gives it the prior's wall, which the mesh still never fuses; a ray whose
+weight the field spreads as haze gets none either."""
 
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from endopipe.stages.camera import Camera
 from endopipe.stages.centerline.prior import TubePrior
 from endopipe.stages.nerf.baked import BakedSurface
+from endopipe.stages.nerf.render import weight_spread
+from endopipe.stages.nerf.sampling import composite, weight_quantiles
 
 
 def _half_wall() -> tuple[Camera, BakedSurface, TubePrior]:
@@ -41,3 +45,25 @@ def test_fill_is_an_opt_in_guess_from_the_prior_with_no_opacity() -> None:
     rho = np.hypot((u[None, :] - 19.5) / 30.0, (v[:, None] - 14.5) / 30.0)
     expected_z = np.minimum(3.0 * 1.25 / rho, 6 * 3.0 / np.sqrt(1 + rho**2))
     np.testing.assert_allclose(right, expected_z, rtol=0.02)
+
+
+def test_weight_quantiles_spread_each_samples_weight_over_its_interval() -> None:
+    """Equal weights on [2, 10): the quartiles are 4, 6 and 8 exactly, not the nearest
+    samples (a stepped median would make depth maps terraced)."""
+    t = torch.linspace(2.0, 9.5, 16)[None]
+    w = torch.full((1, 16), 1.0 / 16)
+    q = weight_quantiles(t, w, torch.tensor([10.0]), (0.25, 0.5, 0.75))
+    torch.testing.assert_close(q, torch.tensor([[4.0, 6.0, 8.0]]), atol=1e-5, rtol=0)
+
+
+def test_haze_has_a_wide_weight_spread_and_a_wall_a_narrow_one() -> None:
+    """What depth.max_spread (0.2) tells apart: a wall 0.2 deep at z 10, and haze of the same
+    opacity spread from z 2 to 12 (a ray in front of C3VD's lower-left rim)."""
+    t = torch.linspace(1.0, 14.0, 261).expand(2, -1).contiguous()
+    wall = ((t[0] >= 10.0) & (t[0] < 10.2)).float() * 15.0
+    haze = ((t[1] >= 2.0) & (t[1] < 12.0)).float() * 0.3
+    far = torch.full((2,), 14.0)
+    w, _ = composite(t, torch.stack([wall, haze]), torch.ones(2), far)
+    assert w.sum(1).min() > 0.9  # both opaque: opacity cannot tell them apart
+    spread = weight_spread({"t": t, "weights": w}, far)
+    assert spread[0] < 0.02 and spread[1] > 0.3

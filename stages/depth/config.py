@@ -31,6 +31,20 @@ class DepthConfig(StageConfig):
         description="A ray whose rendered opacity is under this found no surface: its depth is "
         "0 (unknown), not a guess.",
     )
+    max_spread: float | None = Field(
+        0.2,
+        gt=0,
+        description="A ray the field puts on no one surface gets no depth (0, unknown): the middle "
+        "half of its rendered weight spans more than this fraction of its depth (haze in front "
+        "of the wall, a ray grazing a fold's rim). Applies to rays the baked surface misses, "
+        "and to all with renderer field. None: any spread.",
+    )
+    bake_min_component: float = Field(
+        0.5,
+        ge=0,
+        description="Baked surface: drop connected pieces less than this many lumen radii across "
+        "(floaters; mesh.min_component_diameter drops them from the mesh). 0: keep all.",
+    )
     fill: bool = Field(
         False,
         description="Give rays that found no surface the depth where they leave the lumen "

@@ -47,6 +47,8 @@ class DepthSummary(Summary):
     sequence_scaled: dict | None = None
     affine_invariant: dict | None = None
     coverage: float | None = None  # share of valid ground-truth pixels that got a depth
+    unknown_share: float | None = None  # share of the lens's pixels with no depth
+    hazy_share: float | None = None  # ... of which the field spread over no one surface
     baselines: dict | None = None  # the guesses' protocol blocks (metrics.json `baselines`)
     heldout_psnr: float | None = None
     heldout_ssim: float | None = None
@@ -57,7 +59,7 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    version = 4  # 4: no depth on pixels the lens model does not reach
+    version = 5  # 5: no depth where a ray's weight is spread; no baked floaters
     Config = DepthConfig
 
     @classmethod
@@ -84,6 +86,7 @@ class Depth(Stage):
         for sub in (DEPTH_DIR, OPACITY_DIR):
             (ctx.out / sub).mkdir()
         depths, rgbs, times = {}, {}, []
+        lens_px, unknown_px, hazy_px = int((~beyond_lens).sum()), 0, 0
         with ctx.progress("depth", total=len(poses.registered)) as advance:
             for i in poses.registered:
                 t0 = time.perf_counter()
@@ -92,6 +95,8 @@ class Depth(Stage):
                 out["depth"][beyond_lens] = 0.0
                 out["opacity"][beyond_lens] = 0.0
                 depths[i] = out["depth"].astype(np.float32)
+                unknown_px += int((depths[i][~beyond_lens] <= 0).sum())
+                hazy_px += int(out["hazy"][~beyond_lens].sum())
                 np.save(ctx.out / DEPTH_DIR / frame_file(i), depths[i])
                 np.save(ctx.out / OPACITY_DIR / frame_file(i), out["opacity"].astype(np.float32))
                 if "rgb" in out:
@@ -114,9 +119,12 @@ class Depth(Stage):
                 units=poses.file.units,
             )
         ms = 1000 * float(np.median(times[1:] if len(times) > 1 else times))
+        pixels = max(lens_px * len(depths), 1)
         ctx.log(
             f"{len(depths)} depth maps, {ms:.0f} ms per frame ({cfg.renderer}; "
-            f"baking {bake_s:.1f} s)"
+            f"baking {bake_s:.1f} s); no depth on {unknown_px / pixels:.1%} of the lens's "
+            f"pixels, {hazy_px / pixels:.1%} for a ray spread over no one surface "
+            "(depth.max_spread)"
         )
         return DepthSummary(
             frames=len(depths),
@@ -130,6 +138,8 @@ class Depth(Stage):
             sequence_scaled=metrics.get("sequence_scaled"),
             affine_invariant=metrics.get("affine_invariant"),
             coverage=headline_coverage(metrics),
+            unknown_share=unknown_px / pixels,
+            hazy_share=hazy_px / pixels,
             baselines=metrics.get("baselines"),
             heldout_psnr=metrics.get("heldout_psnr"),
             heldout_ssim=metrics.get("heldout_ssim"),
@@ -145,18 +155,28 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k):
 
         def render_field(k, c2w, i, colour):
             out = render_image(model, prior, k, c2w, colour=colour)
-            out["depth"] = np.where(out["opacity"] >= cfg.min_opacity, out["depth"], 0.0)
+            found = out["opacity"] >= cfg.min_opacity
+            out["hazy"] = np.zeros_like(found)
+            if cfg.max_spread is not None:
+                out["hazy"] = found & (out["spread"] > cfg.max_spread)
+            out["depth"] = np.where(found & ~out["hazy"], out["depth"], 0.0)
             return out
 
         return render_field
     from endopipe.stages.nerf.baked import BakedSurface
 
     baked = BakedSurface.bake(
-        model, prior, c2ws, k, cfg.bake_voxels_per_radius, cfg.bake_density_level
+        model,
+        prior,
+        c2ws,
+        k,
+        cfg.bake_voxels_per_radius,
+        cfg.bake_density_level,
+        min_component_radii=cfg.bake_min_component,
     )
 
     def render(k, c2w, i, colour):
-        out = baked.render_depth(k, c2w, cfg.min_opacity, cfg.fill)
+        out = baked.render_depth(k, c2w, cfg.min_opacity, cfg.fill, cfg.max_spread)
         if colour:  # colour needs the albedo field: render it exactly, only for held-out frames
             out["rgb"] = render_image(model, prior, k, c2w, colour=True)["rgb"]
         return out

@@ -41,11 +41,14 @@ class BakedSurface:
         density_level: float | None = None,
         band: float = 0.6,
         reach_radii: float = 2.5,
+        min_component_radii: float = 0.0,
     ) -> BakedSurface:
         """Iso-surface of the field's density in the prior's band, over the cameras' frustums,
         at `density_level` per lumen radius (None: the density at the field's rendered surface,
-        from `surface_density_level`)."""
+        from `surface_density_level`), without the connected pieces less than
+        `min_component_radii` lumen radii across (floaters: the mesh stage drops them too)."""
         from endopipe.stages.nerf.render import surface_density_level
+        from endopipe.stages.surface.clean import drop_small_components
         from endopipe.stages.surface.marching import density_mesh, field_density_fn, iso_level
 
         calibrated = None
@@ -66,16 +69,26 @@ class BakedSurface:
             spacing=radius / voxels_per_radius,
             band=band,
         )
+        if min_component_radii > 0:
+            mesh, _ = drop_small_components(mesh, 0.0, min_component_radii * radius)
         return cls(np.asarray(mesh.vertices), np.asarray(mesh.faces), prior, model)
 
     def render_depth(
-        self, k: Camera, c2w: np.ndarray, min_opacity: float = 0.5, fill: bool = False
+        self,
+        k: Camera,
+        c2w: np.ndarray,
+        min_opacity: float = 0.5,
+        fill: bool = False,
+        max_spread: float | None = None,
     ) -> dict[str, np.ndarray]:
-        """z-depth (H, W) in world units and opacity. A ray that meets no baked surface (it runs
-        past the baked reach, e.g. down the lumen) is volume-rendered by the field itself; where
-        that finds no surface either (opacity under `min_opacity`) the depth is 0, unknown.
-        `fill` instead gives those rays the depth where they leave the prior's wall (a guess
-        from the prior, not an observation; nothing without a wall)."""
+        """z-depth (H, W) in world units, opacity and `hazy` (the rays left unknown for their
+        spread). A ray that meets no baked surface (it runs
+        past the baked reach, e.g. down the lumen, or through a hole in the iso-surface) is
+        volume-rendered by the field itself; where that finds no surface (opacity under
+        `min_opacity`) or no one surface (weight spread over `max_spread`, see
+        `render.weight_spread`), the depth is 0, unknown. `fill` instead gives those rays the
+        depth where they leave the prior's wall (a guess from the prior, not an observation;
+        nothing without a wall)."""
         import open3d as o3d
 
         dc = image_directions(k)  # camera z = 1, the lens's distortion undone
@@ -91,26 +104,33 @@ class BakedSurface:
         depth = np.where(hit, t / norm, 0.0).astype(np.float32)  # ray length -> z-depth
         opacity = hit.astype(np.float32)
         miss = ~hit.reshape(-1)
+        hazy = np.zeros(k.height * k.width, bool)
         if self.model is not None and miss.any():
-            z, op = self._render_missed(k, c2w, np.nonzero(miss)[0])
+            z, op, spread = self._render_missed(k, c2w, np.nonzero(miss)[0])
             opacity.reshape(-1)[miss] = op
-            depth.reshape(-1)[miss] = np.where(op >= min_opacity, z, 0.0)
+            found = op >= min_opacity
+            if max_spread is not None:
+                hazy[miss] = found & (spread > max_spread)
+                found &= ~hazy[miss]
+            depth.reshape(-1)[miss] = np.where(found, z, 0.0)
         unknown = depth.reshape(-1) <= 0
         if fill and self.prior is not None and getattr(self.prior, "kind", "") != "none":
             if unknown.any():
                 dz = (dc.reshape(-1, 3)[unknown]) @ np.asarray(c2w)[:3, :3].T  # camera z = 1
                 _, far = self.prior.ray_bounds(o[unknown], dz)
                 depth.reshape(-1)[unknown] = np.asarray(far, np.float32)
-        return {"depth": depth, "opacity": opacity}
+        return {"depth": depth, "opacity": opacity, "hazy": hazy.reshape(k.height, k.width)}
 
     def _render_missed(
         self, k: Camera, c2w: np.ndarray, pixels: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Expected z-depth (world) and opacity of the field along the rays of `pixels`."""
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Expected z-depth (world), opacity and weight spread of the field along the rays of
+        `pixels`."""
         import torch
 
         from endopipe.stages.camera import pixel_rays
         from endopipe.stages.nerf.bounds import scene_bounds
+        from endopipe.stages.nerf.render import weight_spread
 
         model = self.model
         dev = model.log_gain.device
@@ -119,7 +139,7 @@ class BakedSurface:
         )
         u = torch.as_tensor(pixels % k.width, dtype=torch.float32, device=dev)
         v = torch.as_tensor(pixels // k.width, dtype=torch.float32, device=dev)
-        zs, ops = [], []
+        zs, ops, spreads = [], [], []
         chunk = model.cfg.sampling.chunk
         with torch.no_grad():
             for a in range(0, len(pixels), chunk):
@@ -127,8 +147,6 @@ class BakedSurface:
                 near, far = scene_bounds(model, self.prior, o, d)
                 out = model.render_rays(o, d, near, far, colour=False)
                 zs.append(out["depth"] * model.box.scale)
+                spreads.append(weight_spread(out, far))
                 ops.append(out["opacity"])
-        return (
-            torch.cat(zs).float().cpu().numpy(),
-            torch.cat(ops).float().cpu().numpy(),
-        )
+        return tuple(torch.cat(a).float().cpu().numpy() for a in (zs, ops, spreads))

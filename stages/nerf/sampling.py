@@ -53,6 +53,26 @@ def composite(
     return alpha * trans, tau
 
 
+def weight_quantiles(
+    t: torch.Tensor, weights: torch.Tensor, far: torch.Tensor, qs: tuple[float, ...]
+) -> torch.Tensor:
+    """(B, S) sorted samples and their compositing weights -> (B, len(qs)) depths below which
+    the fractions `qs` of each ray's weight lie. Sample i's weight is spread evenly over its
+    interval [t_i, t_i+1) (the last one up to `far`), as `composite` defines it, so the
+    quantiles move smoothly with the field, not in steps of the sample spacing."""
+    b, s = t.shape
+    ends = torch.cat([t[:, 1:], torch.maximum(far, t[:, -1])[:, None]], 1)
+    cdf = torch.cumsum(weights, 1)
+    cdf = cdf / cdf[:, -1:].clamp_min(1e-12)
+    q = torch.as_tensor(qs, dtype=t.dtype, device=t.device).expand(b, len(qs)).contiguous()
+    idx = torch.searchsorted(cdf, q).clamp(max=s - 1)
+    before = torch.where(idx > 0, cdf.gather(1, (idx - 1).clamp_min(0)), torch.zeros_like(q))
+    mass = (cdf.gather(1, idx) - before).clamp_min(1e-12)
+    frac = ((q - before) / mass).clamp(0, 1)
+    t0 = t.gather(1, idx)
+    return t0 + frac * (ends.gather(1, idx) - t0)
+
+
 def sample_pdf(
     t: torch.Tensor,
     weights: torch.Tensor,

@@ -668,6 +668,12 @@ def depth_render_rows(data: CaseData) -> str:
     ]
     if renderer == "baked" and _number(s.get("bake_s")) is not None:
         rows.append(("Baking the surface", fmt(s.get("bake_s"), "s") + " once"))
+    unknown, hazy = _number(s.get("unknown_share")), _number(s.get("hazy_share"))
+    if unknown is not None:
+        why = "the ray found no surface"
+        if hazy:
+            why += f"; {100 * hazy:.1f}% spread over no one surface (depth.max_spread)"
+        rows.append(("No depth (unknown)", f"{100 * unknown:.1f}% of the lens's pixels ({why})"))
     return "<h3>Rendering</h3>" + kv_table(rows)
 
 
