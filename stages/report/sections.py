@@ -670,9 +670,11 @@ def depth_render_rows(data: CaseData) -> str:
         rows.append(("Baking the surface", fmt(s.get("bake_s"), "s") + " once"))
     unknown, hazy = _number(s.get("unknown_share")), _number(s.get("hazy_share"))
     if unknown is not None:
-        why = "the ray found no surface"
+        why = "their rays found no surface"
         if hazy:
-            why += f"; {100 * hazy:.1f}% spread over no one surface (depth.max_spread)"
+            why = f"{100 * hazy:.1f}% spread over no one surface, depth.max_spread"
+            if unknown - hazy > 5e-4:
+                why += "; the rest found none"
         rows.append(("No depth (unknown)", f"{100 * unknown:.1f}% of the lens's pixels ({why})"))
     return "<h3>Rendering</h3>" + kv_table(rows)
 
