@@ -82,13 +82,12 @@ class BakedSurface:
         max_spread: float | None = None,
     ) -> dict[str, np.ndarray]:
         """z-depth (H, W) in world units, opacity and `hazy` (the rays left unknown for their
-        spread). A ray that meets no baked surface (it runs
-        past the baked reach, e.g. down the lumen, or through a hole in the iso-surface) is
-        volume-rendered by the field itself; where that finds no surface (opacity under
-        `min_opacity`) or no one surface (weight spread over `max_spread`, see
-        `render.weight_spread`), the depth is 0, unknown. `fill` instead gives those rays the
-        depth where they leave the prior's wall (a guess from the prior, not an observation;
-        nothing without a wall)."""
+        spread). A ray that meets no baked surface (it runs past the baked reach, e.g. down the
+        lumen, or through a hole in the iso-surface) is volume-rendered by the field itself;
+        where that finds no surface (opacity under `min_opacity`) or no one surface (weight
+        spread over `max_spread`, see `render.weight_spread`), the depth is 0, unknown. `fill`
+        instead gives those rays the depth where they leave the prior's wall (a guess from the
+        prior, not an observation; nothing without a wall)."""
         import open3d as o3d
 
         dc = image_directions(k)  # camera z = 1, the lens's distortion undone
