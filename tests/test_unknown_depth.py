@@ -57,7 +57,7 @@ def test_weight_quantiles_spread_each_samples_weight_over_its_interval() -> None
 
 
 def test_haze_has_a_wide_weight_spread_and_a_wall_a_narrow_one() -> None:
-    """What depth.max_spread (0.2) tells apart: a wall 0.2 deep at z 10, and haze of the same
+    """What depth.max_spread (0.15) tells apart: a wall 0.2 deep at z 10, and haze of the same
     opacity spread from z 2 to 12 (a ray in front of C3VD's lower-left rim)."""
     t = torch.linspace(1.0, 14.0, 261).expand(2, -1).contiguous()
     wall = ((t[0] >= 10.0) & (t[0] < 10.2)).float() * 15.0

@@ -32,7 +32,7 @@ class DepthConfig(StageConfig):
         "0 (unknown), not a guess.",
     )
     max_spread: float | None = Field(
-        0.2,
+        0.15,
         gt=0,
         description="A ray the field puts on no one surface gets no depth (0, unknown): the middle "
         "half of its rendered weight spans more than this fraction of its depth (haze in front "
