@@ -149,17 +149,16 @@ class Depth(Stage):
 def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k):
     """A function (intrinsics, c2w, frame, colour) -> {depth, opacity[, rgb]}; depth is 0
     where the ray found no surface (unless `fill`)."""
-    from endopipe.stages.nerf.render import render_image
+    from endopipe.stages.nerf.render import render_image, surface_found
 
     if cfg.renderer == "field":
 
         def render_field(k, c2w, i, colour):
             out = render_image(model, prior, k, c2w, colour=colour)
-            found = out["opacity"] >= cfg.min_opacity
-            out["hazy"] = np.zeros_like(found)
-            if cfg.max_spread is not None:
-                out["hazy"] = found & (out["spread"] > cfg.max_spread)
-            out["depth"] = np.where(found & ~out["hazy"], out["depth"], 0.0)
+            found, out["hazy"] = surface_found(
+                out["opacity"], out["spread"], cfg.min_opacity, cfg.max_spread
+            )
+            out["depth"] = np.where(found, out["depth"], 0.0)
             return out
 
         return render_field

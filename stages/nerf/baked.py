@@ -90,6 +90,8 @@ class BakedSurface:
         prior, not an observation; nothing without a wall)."""
         import open3d as o3d
 
+        from endopipe.stages.nerf.render import surface_found
+
         dc = image_directions(k)  # camera z = 1, the lens's distortion undone
         norm = np.linalg.norm(dc, axis=-1)
         d = (dc / norm[..., None]).reshape(-1, 3) @ np.asarray(c2w)[:3, :3].T
@@ -107,10 +109,7 @@ class BakedSurface:
         if self.model is not None and miss.any():
             z, op, spread = self._render_missed(k, c2w, np.nonzero(miss)[0])
             opacity.reshape(-1)[miss] = op
-            found = op >= min_opacity
-            if max_spread is not None:
-                hazy[miss] = found & (spread > max_spread)
-                found &= ~hazy[miss]
+            found, hazy[miss] = surface_found(op, spread, min_opacity, max_spread)
             depth.reshape(-1)[miss] = np.where(found, z, 0.0)
         unknown = depth.reshape(-1) <= 0
         if fill and self.prior is not None and getattr(self.prior, "kind", "") != "none":

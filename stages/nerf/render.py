@@ -63,6 +63,16 @@ def weight_spread(out: dict[str, torch.Tensor], far: torch.Tensor) -> torch.Tens
     return (q[:, 2] - q[:, 0]) / q[:, 1].clamp_min(1e-9)
 
 
+def surface_found(
+    opacity: np.ndarray, spread: np.ndarray, min_opacity: float, max_spread: float | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(found, hazy) of volume-rendered rays: those that get a depth (opaque enough, and their
+    weight on one surface), and those left unknown for their spread alone (None: any)."""
+    opaque = opacity >= min_opacity
+    hazy = opaque & (spread > max_spread) if max_spread is not None else np.zeros_like(opaque)
+    return opaque & ~hazy, hazy
+
+
 @torch.no_grad()
 def render_image(
     model: NerfModel,
