@@ -258,6 +258,21 @@ def test_training_lowers_the_loss_and_renders_z_depth(tmp_path):
     assert np.isfinite(grid.values).all() and grid.values.max() > 0
 
 
+def test_photo_weight_scales_l_photo_alone(tmp_path):
+    """nerf.loss.photo_weight multiplies L_photo and nothing else: from one seed the first step
+    sees the same batch, so the loss differs by exactly (w - 1) x L_photo (README, stop 29)."""
+    rows = []
+    for w in (1.0, 3.0):
+        cfg = tiny_config(steps=1)
+        cfg.loss.photo_weight = w
+        frames, train, _, prior, box, *_ = tiny_setup(cfg)
+        tr = Trainer(cfg, frames, train, prior, box, tmp_path / str(w), log=lambda m: None)
+        tr.fit()
+        rows.append(tr.rows[0])
+    assert rows[0]["photo"] == pytest.approx(rows[1]["photo"], rel=1e-6) and rows[0]["photo"] > 0
+    assert rows[1]["loss"] - rows[0]["loss"] == pytest.approx(2 * rows[0]["photo"], rel=1e-4)
+
+
 def test_checkpoint_resume_continues_and_matches(tmp_path):
     cfg = tiny_config(steps=40, checkpoint_every=20)
     setup = tiny_setup(cfg)

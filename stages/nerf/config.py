@@ -236,6 +236,12 @@ class LossConfig(_Section):
         description="Leave this fraction of each batch's largest photometric residuals out of "
         "L_photo (robustness to highlights the masks missed; 0: plain masked L2).",
     )
+    photo_weight: float = Field(
+        1.0,
+        gt=0,
+        description="Weight of L_photo (the seed's 1). With Adam, raising it is lowering every "
+        "other term at once.",
+    )
     lambda_prior: float = Field(0.1, ge=0, description="lambda_1.")
     lambda_smooth: float = Field(
         0.01,

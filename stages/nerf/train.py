@@ -243,7 +243,7 @@ class Trainer:
         if "coarse_rgb" in out:
             photo = photo + losses.photo(out["coarse_rgb"], b.rgb, b.valid, sat, trim)
         terms["photo"] = photo
-        loss = photo if lc.photo else photo.detach() * 0
+        loss = lc.photo_weight * photo if lc.photo else photo.detach() * 0
         if lc.prior and lc.lambda_prior > 0:
             lam = lc.lambda_prior * losses.prior_multiplier(
                 progress, lc.prior_start, lc.prior_decay
