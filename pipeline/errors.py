@@ -28,6 +28,11 @@ class StageFailed(EndopipeError):
     exit_code = 3
 
 
+class SummaryMismatch(EndopipeError):
+    """A stage folder's manifest summary is not the model its stage reads today (written by
+    another version of endopipe, or edited by hand)."""
+
+
 class CaseLocked(EndopipeError):
     """Another endopipe process is working on the same case."""
 

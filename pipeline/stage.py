@@ -9,9 +9,9 @@ import json
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, ValidationError
 from rich.console import Console
 from rich.progress import (
     BarColumn,
@@ -22,6 +22,9 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
+from endopipe.pipeline.cache import Manifest
+from endopipe.pipeline.errors import SummaryMismatch
+
 
 class StageConfig(BaseModel):
     """Base of every stage's config: unknown keys are errors, assignments are validated."""
@@ -30,9 +33,33 @@ class StageConfig(BaseModel):
 
 
 class Summary(BaseModel):
-    """What a stage reports about its run; stored in its manifest. Stages add their own fields."""
+    """What a stage reports about its run; stored in its manifest. Each stage declares its own
+    fields, and its view reads them back as the same model (`read_summary`), so a field that is
+    renamed on one side fails loudly instead of blanking a report column."""
 
-    model_config = ConfigDict(extra="allow")
+    model_config = ConfigDict(extra="forbid")
+
+
+S = TypeVar("S", bound=Summary)
+
+
+def read_summary(folder: Path, model: type[S]) -> S:
+    """The summary in `folder`'s manifest as the stage's model. A missing manifest or one
+    written with other fields is a SummaryMismatch naming the stage and what to do."""
+    manifest = Manifest.load(folder)
+    if manifest is None:
+        raise SummaryMismatch(f"{folder} has no readable manifest.json; re-run its stage")
+    try:
+        return model.model_validate(manifest.summary)
+    except ValidationError as e:
+        problems = "; ".join(
+            f"{'.'.join(str(p) for p in err['loc']) or '(root)'}: {err['msg']}"
+            for err in e.errors()[:3]
+        )
+        raise SummaryMismatch(
+            f"{folder.name}: the {manifest.stage} summary does not match {model.__name__} "
+            f"({problems}); re-run with --from {manifest.stage}"
+        ) from None
 
 
 class CaseInfo(BaseModel):

@@ -18,6 +18,12 @@ import trimesh
 from endopipe.pipeline.cache import Manifest, list_files
 from endopipe.pipeline.stage import CaseInfo, write_json
 from endopipe.stages.camera import Camera
+from endopipe.stages.centerline.summary import CenterlineSummary
+from endopipe.stages.depth.summary import DepthSummary
+from endopipe.stages.ingest.summary import IngestSummary
+from endopipe.stages.mesh.summary import MeshSummary
+from endopipe.stages.nerf.summary import NerfSummary
+from endopipe.stages.poses.summary import PosesSummary
 from endopipe.stages.poses.view import CamerasFile
 
 W, H = 64, 48
@@ -178,7 +184,21 @@ def make_case(
                 "gt_dir": str(gt_dir) if gt else None,
             },
         )
-        _manifest(d, "ingest", 1.2, 310.0, {"kept": N_FRAMES, "source_frames": N_FRAMES})
+        ingest_summary = IngestSummary(
+            kind="case",
+            source_frames=N_FRAMES,
+            read=N_FRAMES,
+            kept=N_FRAMES,
+            dropped={},
+            width=W,
+            height=H,
+            fov_shape="full",
+            fov_fraction=1.0,
+            mean_specular_fraction=0.0,
+            has_intrinsics=True,
+            has_ground_truth=gt,
+        )
+        _manifest(d, "ingest", 1.2, 310.0, ingest_summary.model_dump(mode="json"))
 
     if "poses" in stages:
         d = case / "02_poses"
@@ -195,16 +215,25 @@ def make_case(
                 kc,
                 {f"{i:06d}.png": p for i, p in registered.items()},
             )
-        summary = {
-            "source": "test",
-            "registered": len(registered),
-            "total": N_FRAMES,
-            "registered_fraction": len(registered) / N_FRAMES,
-            "metric": gt,
-        }
-        if gt:
-            summary.update(ate_mm=0.42, ate_percent_of_path=4.2, rre_deg=0.31)
-        _manifest(d, "poses", 3.4, 420.0, summary)
+        poses_summary = PosesSummary(
+            source="gt" if gt else "file",
+            registered=len(registered),
+            total=N_FRAMES,
+            registered_fraction=len(registered) / N_FRAMES,
+            unregistered=str(UNREGISTERED),
+            camera_model="PINHOLE",
+            intrinsics="fixed",
+            fx=k.fx,
+            fy=k.fy,
+            cx=k.cx,
+            cy=k.cy,
+            metric=gt,
+            aligned_to_gt=gt,
+            points=0,
+            seconds=3.4,
+            **({"ate_mm": 0.42, "ate_percent_of_path": 4.2, "rre_deg": 0.31} if gt else {}),
+        )
+        _manifest(d, "poses", 3.4, 420.0, poses_summary.model_dump(mode="json"))
 
     if "centerline" in stages:
         d = case / "03_centerline"
@@ -224,7 +253,17 @@ def make_case(
             },
         )
         cv2.imwrite(str(d / "centerline.png"), np.full((40, 60, 3), 200, np.uint8))
-        _manifest(d, "centerline", 0.8, 300.0, {"kind": "tube", "length": 16.0})
+        centerline_summary = CenterlineSummary(
+            kind="tube",
+            length=16.0,
+            mean_radius=6.0,
+            radius_source="points",
+            radius_note="",
+            n_points_used=0,
+            n_cameras=N_FRAMES - 1,
+            units="mm",
+        )
+        _manifest(d, "centerline", 0.8, 300.0, centerline_summary.model_dump(mode="json"))
 
     if "nerf" in stages:
         d = case / "04_nerf"
@@ -238,7 +277,15 @@ def make_case(
         (d / "model.pt").write_bytes(b"not a real model")
         if metrics:
             write_json(d / "metrics.json", {"psnr": 23.4, "render_ms": 12.0})
-        _manifest(d, "nerf", 95.0, 1800.0, {"steps": 200, "heldout_psnr": 23.4})
+        nerf_summary = NerfSummary(
+            steps=200,
+            train_frames=N_FRAMES - 2,
+            heldout_frames=1,
+            train_s=95.0,
+            rays_per_s=4000.0,
+            heldout_psnr=23.4,
+        )
+        _manifest(d, "nerf", 95.0, 1800.0, nerf_summary.model_dump(mode="json"))
 
     if "depth" in stages:
         d = case / "05_depth"
@@ -255,7 +302,15 @@ def make_case(
             from tests.conftest import write_video
 
             write_video(d / "preview.mp4", [np.full((H, W * 3, 3), 90, np.uint8)] * 3)
-        _manifest(d, "depth", 12.5, 900.0, {"frames": N_FRAMES - 1})
+        depth_summary = DepthSummary(
+            frames=N_FRAMES - 1,
+            units="mm",
+            png_scale=1000.0,
+            ms_per_frame=20.0,
+            bake_s=1.0,
+            renderer="baked",
+        )
+        _manifest(d, "depth", 12.5, 900.0, depth_summary.model_dump(mode="json"))
 
     if "mesh" in stages:
         d = case / "06_mesh"
@@ -265,5 +320,16 @@ def make_case(
         mesh.export(d / "mesh.ply")
         if metrics and gt:
             write_json(d / "metrics.json", MESH_METRICS)
-        _manifest(d, "mesh", 4.0, 500.0, {"vertices": len(mesh.vertices)})
+        mesh_summary = MeshSummary(
+            method="tsdf",
+            vertices=len(mesh.vertices),
+            faces=len(mesh.faces),
+            voxel_size=0.25,
+            depth_trunc=60.0,
+            frames_used=N_FRAMES - 1,
+            units="mm",
+            build_s=3.0,
+            clean_s=1.0,
+        )
+        _manifest(d, "mesh", 4.0, 500.0, mesh_summary.model_dump(mode="json"))
     return case

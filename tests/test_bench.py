@@ -10,7 +10,7 @@ from rich.console import Console
 
 from endopipe.cli import build_pipeline, prepare_case
 from endopipe.commands.bench import BenchCase, BenchPlan, markdown_table, plan, run_bench
-from endopipe.pipeline.errors import ConfigError
+from endopipe.pipeline.errors import ConfigError, SummaryMismatch
 
 
 def test_case_filter_and_unknown_case() -> None:
@@ -113,6 +113,14 @@ def test_rows_and_table_put_the_two_guesses_beside_ours(tmp_path: Path) -> None:
     write_csv(tmp_path / "bench.csv", [row])
     header = (tmp_path / "bench.csv").read_text().splitlines()[0].split(",")
     assert header == list(COLUMNS) and "brightness_delta1" in header
+
+    # A summary field renamed on one side fails the row loudly instead of blanking a column.
+    renamed = summary.model_dump() | {"coverage_share": 5 / 6}
+    del renamed["coverage"]
+    manifest.summary = renamed
+    (folder / "manifest.json").write_text(manifest.model_dump_json())
+    with pytest.raises(SummaryMismatch, match="coverage_share"):
+        collect_row(pipe, tmp_path, "wall", "full", 1.0, {"depth"})
 
 
 def test_the_pose_sweep_plan_varies_what_sfm_finds_hard() -> None:

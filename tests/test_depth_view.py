@@ -52,8 +52,8 @@ def test_view_reads_depth_opacity_and_metrics(tmp_path: Path) -> None:
     read = DepthView(tmp_path).metrics
     assert isinstance(read, DepthMetrics)
     assert read.gt_kind == "exact" and read.frames == 3 and read.heldout_psnr == 21.5
-    assert abs(read.sequence_scaled["scale"] - 2.0) < 1e-6
-    assert read.median_scaled["abs_rel"] < 1e-6
+    assert abs(read.sequence_scaled.scale - 2.0) < 1e-6
+    assert read.median_scaled.abs_rel < 1e-6
     assert json.dumps(read.model_dump(mode="json", exclude_none=True), indent=2) == text
 
 

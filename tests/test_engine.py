@@ -22,16 +22,20 @@ class AConfig(StageConfig):
     mode: str = Field("x", description="A label.")
 
 
+class ASummary(Summary):
+    value: int
+
+
 class A(Stage):
     """Writes a number."""
 
     name = "a"
     Config = AConfig
 
-    def run(self, ctx: StageContext) -> Summary:
+    def run(self, ctx: StageContext) -> ASummary:
         CALLS.append("a")
         (ctx.out / "a.txt").write_text(str(ctx.config.value))
-        return Summary(value=ctx.config.value)
+        return ASummary(value=ctx.config.value)
 
 
 class BConfig(StageConfig):

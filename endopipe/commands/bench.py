@@ -11,13 +11,19 @@ import csv
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from pydantic import BaseModel
 
 from endopipe.pipeline.config import load_config
 from endopipe.pipeline.errors import ConfigError, EndopipeError
 from endopipe.pipeline.runner import Pipeline
+from endopipe.stages.centerline.summary import CenterlineSummary
+from endopipe.stages.depth.summary import DepthSummary
+from endopipe.stages.mesh.summary import MeshSummary
 from endopipe.stages.metrics.baselines import GUESSES
+from endopipe.stages.metrics.scores import DepthScores
+from endopipe.stages.poses.summary import PosesSummary
 
 #: name -> --set overrides. "plain" is a NeRF without the prior, the near-light model and the
 #: depth regularisers (and without the SfM-point depth): the paper's NeRF-endo baseline.
@@ -163,7 +169,7 @@ def _plan(quick: bool) -> BenchPlan:
         cases=[
             BenchCase(name="colon", shape="colon", frames=60, width=320, height=256, seed=7),
             BenchCase(name="cavity", shape="cavity", frames=60, width=320, height=256, seed=7),
-            # issue 14's lens cases: the bench colon through a 110-degree barrel lens, given and
+            # the lens cases: the bench colon through a 110-degree barrel lens, given and
             # estimated (OPENCV: the synth lens's own model), and its pinhole twin at 110 deg
             BenchCase(**COLON, name="colon_wide", fov_diag=110.0),
             BenchCase(**COLON, name="colon_barrel", lens="barrel"),
@@ -276,32 +282,37 @@ def collect_row(
     wall = every stage's own time (cached ones included)."""
     names = [s.name for s in pipe.stages if fresh is None or s.name in fresh]
     manifests = {n: pipe.manifest(case_dir, n) for n in names}
-    summary = {k: (m.summary if m else {}) for k, m in manifests.items()}
-    depth = summary.get("depth", {})
-    med = depth.get("median_scaled") or {}
-    guesses = depth.get("baselines") or {}
-    mesh = summary.get("mesh", {})
-    poses = summary.get("poses", {})
+
+    def summary(name: str) -> Any:
+        """The stage's typed summary, through its view; None when it did not run for this row."""
+        return pipe.view(case_dir, name).summary if manifests.get(name) else None
+
+    depth: DepthSummary | None = summary("depth")
+    mesh: MeshSummary | None = summary("mesh")
+    poses: PosesSummary | None = summary("poses")
+    centerline: CenterlineSummary | None = summary("centerline")
+    med = depth.median_scaled if depth else None
+    guesses = (depth.baselines if depth else None) or {}
     return {
         "case": case,
         "variant": variant,
         "error": error,
-        **{k: med.get(k) for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "delta1")},
-        "coverage": med.get("coverage"),
+        **{k: _score(med, k) for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "delta1")},
+        "coverage": med.coverage if med else None,
         **{
-            f"{name}_{k}": ((guesses.get(name) or {}).get("median_scaled") or {}).get(k)
+            f"{name}_{k}": _score(guesses[name].median_scaled if name in guesses else None, k)
             for k in ("abs_rel", "delta1")
             for name in GUESSES
         },
-        "chamfer": mesh.get("chamfer"),
-        "chamfer_pct_radius": mesh.get("chamfer_pct_radius"),
-        "off_seen_pct": mesh.get("off_seen_pct"),
-        "prior": summary.get("centerline", {}).get("kind"),
-        "psnr": depth.get("heldout_psnr"),
-        "ssim": depth.get("heldout_ssim"),
-        "registered": poses.get("registered_fraction"),
-        "ate_pct": poses.get("ate_percent_of_path"),
-        "depth_ms": depth.get("ms_per_frame"),
+        "chamfer": mesh.chamfer if mesh else None,
+        "chamfer_pct_radius": mesh.chamfer_pct_radius if mesh else None,
+        "off_seen_pct": mesh.off_seen_pct if mesh else None,
+        "prior": centerline.kind if centerline else None,
+        "psnr": depth.heldout_psnr if depth else None,
+        "ssim": depth.heldout_ssim if depth else None,
+        "registered": poses.registered_fraction if poses else None,
+        "ate_pct": poses.ate_percent_of_path if poses else None,
+        "depth_ms": depth.ms_per_frame if depth else None,
         "wall_s": sum(m.wall_s for m in manifests.values() if m),
         "peak_mb": max((m.peak_rss_mb for m in manifests.values() if m), default=None),
     }
@@ -409,7 +420,7 @@ POSE_COLUMNS = (
     "global_mapping_s",
     "incremental_mapping_s",
 )
-#: The sweep's yardsticks (issue 16): poses within 2% of the path are good, beyond 5% wrong.
+#: The sweep's yardsticks: poses within 2% of the path are good, beyond 5% wrong.
 GOOD_ATE_PCT = 2.0
 BAD_ATE_PCT = 5.0
 
@@ -427,8 +438,9 @@ def pose_row(
     poses folder this run produced: a failed run's folder may hold an earlier run's)."""
     ok = fresh is None or "poses" in fresh
     manifest = pipe.manifest(case_dir, "poses") if ok else None
-    s = manifest.summary if manifest else {}
-    verdict = pipe.view(case_dir, "poses").verdict() if manifest else None
+    view = pipe.view(case_dir, "poses") if manifest else None
+    s: PosesSummary | None = view.summary if view else None
+    verdict = view.verdict() if view else None
     others = verdict.others if verdict else {}
     return {
         "case": case.name,
@@ -438,20 +450,36 @@ def pose_row(
         "vignetting": case.vignetting,
         "lens": lens_label(case),
         "error": error,
-        "registered": s.get("registered_fraction"),
-        "ate_pct": s.get("ate_percent_of_path"),
-        "mapper": s.get("mapper") or None,
-        "verdict": s.get("verdict"),
-        "reasons": s.get("verdict_reasons") or "",
-        "doubtful_frames": s.get("doubtful_frames") or "",
-        "doubtful_count": count_ranges(s.get("doubtful_frames") or "") if manifest else None,
-        "disagreement_pct": s.get("mappers_disagreement_pct"),
+        **_pose_measures(s),
         "other": "; ".join(f"{m}: {_first_clause(why)}" for m, why in others.items()),
-        "other_ate_pct": next(iter((s.get("others_ate_percent") or {}).values()), None),
-        "depth_drift": s.get("depth_drift"),
-        "poses_s": s.get("seconds"),
-        **{k: s.get(k) for k in POSE_COLUMNS[-4:]},
     }
+
+
+def _pose_measures(s: PosesSummary | None) -> dict:
+    """The sweep's columns from a poses summary (None each without one, "" for the texts)."""
+    if s is None:
+        names = ("registered", "ate_pct", "mapper", "verdict", "doubtful_count")
+        names += ("disagreement_pct", "other_ate_pct", "depth_drift", "poses_s")
+        return dict.fromkeys(names + POSE_COLUMNS[-4:]) | {"reasons": "", "doubtful_frames": ""}
+    return {
+        "registered": s.registered_fraction,
+        "ate_pct": s.ate_percent_of_path,
+        "mapper": s.mapper or None,
+        "verdict": s.verdict,
+        "reasons": s.verdict_reasons,
+        "doubtful_frames": s.doubtful_frames,
+        "doubtful_count": count_ranges(s.doubtful_frames),
+        "disagreement_pct": s.mappers_disagreement_pct,
+        "other_ate_pct": next(iter(s.others_ate_percent.values()), None),
+        "depth_drift": s.depth_drift,
+        "poses_s": s.seconds,
+        **{k: s.timings.get(k) for k in POSE_COLUMNS[-4:]},
+    }
+
+
+def _score(block: DepthScores | None, name: str) -> float | None:
+    """One score of a protocol block (AttributeError for a name DepthScores does not have)."""
+    return getattr(block, name) if block is not None else None
 
 
 def lens_label(case: BenchCase) -> str:

@@ -17,10 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from endopipe.pipeline.errors import StageFailed
-from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
+from endopipe.pipeline.stage import Stage, StageContext, write_json
 from endopipe.stages.centerline.cavity import fit_cavity
 from endopipe.stages.centerline.choose import (
-    PriorScore,
     choose_prior,
     empty_core,
     point_reach,
@@ -30,6 +29,7 @@ from endopipe.stages.centerline.config import CenterlineConfig
 from endopipe.stages.centerline.evaluate import compare_to_truth
 from endopipe.stages.centerline.plot import plot_centerline
 from endopipe.stages.centerline.prior import FreePrior, LumenPrior
+from endopipe.stages.centerline.summary import CenterlineSummary
 from endopipe.stages.centerline.tube import fit_tube
 from endopipe.stages.centerline.view import (
     CENTERLINE_FILE,
@@ -41,27 +41,6 @@ from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.poses.view import PosesView
 
 __all__ = ["Centerline", "CenterlineConfig", "CenterlineSummary", "CenterlineView"]
-
-
-class CenterlineSummary(Summary):
-    kind: str  # the prior the NeRF uses: tube | cavity | none
-    prior_reason: str = ""
-    prior_weight: float = 1.0
-    prior_scores: list[PriorScore] = []
-    reach: float | None = None
-    wall_margin: float = 0.0  # reach_share of the SfM points lie within (1 + it) x the wall
-    core_limit: float = 1.0  # the widest empty core the SfM points allow (fraction of the wall)
-    length: float
-    mean_radius: float
-    radius_source: str
-    radius_note: str
-    n_points_used: int
-    n_cameras: int
-    units: str
-    recentred_slices: int = 0
-    centerline_mean_dist: float | None = None
-    centerline_mean_dist_pct_of_radius: float | None = None
-    radius_error_pct: float | None = None
 
 
 class Centerline(Stage):

@@ -3,13 +3,16 @@ folder. Downstream stages take the lumen prior from `CenterlineView.prior()`."""
 
 from __future__ import annotations
 
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 from pydantic import BaseModel
 
 from endopipe.pipeline.errors import EndopipeError
+from endopipe.pipeline.stage import read_summary
 from endopipe.stages.centerline.prior import LumenPrior
+from endopipe.stages.centerline.summary import CenterlineSummary
 
 CENTERLINE_FILE = "centerline.json"
 PRIOR_FILE = "prior.npz"
@@ -46,6 +49,12 @@ class CenterlineView:
         self.points = np.asarray(self.file.points, np.float64)
         self.radius = np.asarray(self.file.radius, np.float64)
         self.arclength = np.asarray(self.file.arclength, np.float64)
+
+    @cached_property
+    def summary(self) -> CenterlineSummary:
+        """The stage's summary in its manifest, as the model the stage wrote (SummaryMismatch
+        when the folder was written with other fields)."""
+        return read_summary(self.folder, CenterlineSummary)
 
     @property
     def prior_path(self) -> Path:

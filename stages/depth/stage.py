@@ -12,12 +12,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
+from endopipe.pipeline.stage import Stage, StageContext, write_json
 from endopipe.stages.camera import lens_valid_mask
 from endopipe.stages.centerline.view import CenterlineView
 from endopipe.stages.depth.config import DepthConfig
 from endopipe.stages.depth.evaluate import evaluate, ground_truth_depths, headline_coverage
 from endopipe.stages.depth.preview import write_preview
+from endopipe.stages.depth.summary import DepthSummary
 from endopipe.stages.depth.view import (
     DEPTH_DIR,
     METRICS_FILE,
@@ -33,25 +34,6 @@ from endopipe.stages.poses.view import PosesView
 __all__ = ["Depth", "DepthConfig", "DepthSummary", "DepthView"]
 
 PNG_MAX = 65535
-
-
-class DepthSummary(Summary):
-    frames: int
-    units: str
-    png_scale: float
-    ms_per_frame: float
-    bake_s: float
-    renderer: str
-    gt_kind: str | None = None
-    median_scaled: dict | None = None
-    sequence_scaled: dict | None = None
-    affine_invariant: dict | None = None
-    coverage: float | None = None  # share of valid ground-truth pixels that got a depth
-    unknown_share: float | None = None  # share of the lens's pixels with no depth
-    hazy_share: float | None = None  # ... of which the field spread over no one surface
-    baselines: dict | None = None  # the guesses' protocol blocks (metrics.json `baselines`)
-    heldout_psnr: float | None = None
-    heldout_ssim: float | None = None
 
 
 class Depth(Stage):

@@ -3,10 +3,15 @@ preview.mp4. `DepthView` is the only reader of the folder; `DepthMetrics` is met
 
 from __future__ import annotations
 
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
+
+from endopipe.pipeline.stage import read_summary
+from endopipe.stages.depth.summary import DepthSummary
+from endopipe.stages.metrics.scores import DepthScores, ProtocolScores
 
 DEPTH_DIR = "depth"
 OPACITY_DIR = "opacity"
@@ -26,16 +31,16 @@ class DepthMetrics(BaseModel):
 
     model_config = ConfigDict(extra="allow", ser_json_inf_nan="constants")
 
-    median_scaled: dict[str, float] | None = None
-    sequence_scaled: dict[str, float] | None = None
-    unscaled: dict[str, float] | None = None
-    affine_invariant: dict[str, float] | None = None
+    median_scaled: DepthScores | None = None
+    sequence_scaled: DepthScores | None = None
+    unscaled: DepthScores | None = None
+    affine_invariant: DepthScores | None = None
     frames: int | None = None
     per_frame: list[dict] | None = None
     gt_kind: str | None = None  # "exact" | "pseudo" | "relative"
     #: The radial and brightness guesses (stages.metrics.baselines), scored with the same
     #: protocol blocks on the same pixels as ours: {"radial": {"median_scaled": {...}, ...}}.
-    baselines: dict[str, dict] | None = None
+    baselines: dict[str, ProtocolScores] | None = None
     heldout_frames: list[int] | None = None
     heldout_psnr: float | None = None
     heldout_ssim: float | None = None
@@ -50,6 +55,12 @@ class DepthView:
         self.indices = sorted(
             int(p.stem) for p in (self.folder / DEPTH_DIR).glob("*.npy") if p.stem.isdigit()
         )
+
+    @cached_property
+    def summary(self) -> DepthSummary:
+        """The stage's summary in its manifest, as the model the stage wrote (SummaryMismatch
+        when the folder was written with other fields)."""
+        return read_summary(self.folder, DepthSummary)
 
     def depth_path(self, index: int) -> Path:
         return self.folder / DEPTH_DIR / frame_file(index)

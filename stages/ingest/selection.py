@@ -16,7 +16,7 @@ from endopipe.pipeline.errors import InputError
 from endopipe.pipeline.stage import StageContext
 from endopipe.stages.ingest.config import IngestConfig
 from endopipe.stages.ingest.frame_quality import frame_difference, sharpness
-from endopipe.stages.io.sources import Frame, InputSource
+from endopipe.stages.io.input_source import Frame, InputSource
 
 REASONS = ("outside_time_window", "stride", "blank", "duplicate", "blurred", "max_frames")
 

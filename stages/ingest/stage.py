@@ -9,11 +9,12 @@ import numpy as np
 from rich.markup import escape
 
 from endopipe.pipeline.errors import InputError
-from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
+from endopipe.pipeline.stage import Stage, StageContext, write_json
 from endopipe.stages.camera import Camera
 from endopipe.stages.ingest.config import IngestConfig
 from endopipe.stages.ingest.masks import combine, fov_mask_for_sequence, specular_mask
 from endopipe.stages.ingest.selection import Selection, select_frames
+from endopipe.stages.ingest.summary import IngestSummary
 from endopipe.stages.ingest.view import (
     FOV_FILE,
     FRAMES_FILE,
@@ -23,27 +24,10 @@ from endopipe.stages.ingest.view import (
     SourceInfo,
 )
 from endopipe.stages.io.ground_truth import Coverage, coverage
-from endopipe.stages.io.sources import Frame, InputSource, open_input
+from endopipe.stages.io.input_source import Frame, InputSource
+from endopipe.stages.io.sources import open_input
 
 __all__ = ["FrameEntry", "Ingest", "IngestConfig", "IngestSummary", "IngestView"]
-
-
-class IngestSummary(Summary):
-    kind: str
-    source_frames: int | None  # None: unknown (decoding stopped early on a video of no length)
-    read: int  # frames decoded (fewer than source_frames when max_frames stopped decoding)
-    kept: int
-    dropped: dict[str, int]
-    width: int
-    height: int
-    fov_shape: str
-    fov_fraction: float
-    mean_specular_fraction: float
-    has_intrinsics: bool
-    has_ground_truth: bool
-    gt_frames_without_depth: int = 0  # kept frames the ground truth has no depth for
-    gt_frames_without_pose: int = 0  # kept frames the ground truth has no pose for
-    warnings: list[str] = []  # one line each: what the user should know (shown in the report)
 
 
 class Ingest(Stage):

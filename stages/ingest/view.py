@@ -14,9 +14,12 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, Field
 
+from endopipe.pipeline.stage import read_summary
 from endopipe.stages.camera import Camera
-from endopipe.stages.io.ground_truth import GroundTruthSource, open_ground_truth
-from endopipe.stages.io.sources import list_images
+from endopipe.stages.ingest.summary import IngestSummary
+from endopipe.stages.io.datasets import open_ground_truth
+from endopipe.stages.io.ground_truth import GroundTruthSource
+from endopipe.stages.io.images import list_images
 
 FRAMES_FILE = "frames.json"
 FOV_FILE = "fov_mask.png"
@@ -67,6 +70,12 @@ class IngestView:
     @cached_property
     def _by_index(self) -> dict[int, FrameEntry]:
         return {f.index: f for f in self.frames}
+
+    @cached_property
+    def summary(self) -> IngestSummary:
+        """The stage's summary in its manifest, as the model the stage wrote (SummaryMismatch
+        when the folder was written with other fields)."""
+        return read_summary(self.folder, IngestSummary)
 
     def frame(self, index: int) -> FrameEntry:
         """The entry of endopipe frame `index` (KeyError when ingest did not keep it)."""

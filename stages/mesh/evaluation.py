@@ -13,7 +13,8 @@ import numpy as np
 
 from endopipe.pipeline.errors import InputError
 from endopipe.stages.camera import apply_sim3, umeyama
-from endopipe.stages.io.ground_truth import GroundTruthSource, open_ground_truth
+from endopipe.stages.io.datasets import open_ground_truth
+from endopipe.stages.io.ground_truth import GroundTruthSource
 from endopipe.stages.mesh.config import MeshConfig
 from endopipe.stages.surface.evaluate import evaluate_mesh, transform_points
 from endopipe.stages.surface.mesh import RawMesh, read_mesh

@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from endopipe.pipeline.errors import StageFailed
-from endopipe.pipeline.stage import Stage, StageContext, Summary
+from endopipe.pipeline.stage import Stage, StageContext
 from endopipe.stages.centerline.view import CenterlineView
 from endopipe.stages.depth.view import DepthView
 from endopipe.stages.ingest.view import IngestView
@@ -52,30 +52,10 @@ from endopipe.stages.mesh.evaluation import (
     evaluate_against_gt,
     ground_truth_mesh,
 )
+from endopipe.stages.mesh.summary import MeshSummary
 from endopipe.stages.mesh.view import MeshView, save_mesh, save_metrics
 from endopipe.stages.poses.view import PosesView
 from endopipe.stages.surface.clean import clean_mesh
-
-
-class MeshSummary(Summary):
-    method: str
-    vertices: int
-    faces: int
-    voxel_size: float
-    depth_trunc: float
-    frames_used: int
-    units: str
-    build_s: float
-    clean_s: float
-    evaluated: bool = False
-    chamfer: float | None = None
-    chamfer_pct_radius: float | None = None
-    accuracy: float | None = None
-    completeness: float | None = None
-    fscore: float | None = None
-    threshold: float | None = None
-    aligned: str | None = None
-    off_seen_pct: float | None = None
 
 
 def _finite(v: Any) -> Any:

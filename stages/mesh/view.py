@@ -5,13 +5,15 @@ only: the mesh stage saves through `save_mesh` / `save_metrics`, everyone else r
 from __future__ import annotations
 
 import json
+from functools import cached_property
 from pathlib import Path
 from typing import Any, cast
 
 from pydantic import TypeAdapter
 from typing_extensions import TypedDict  # pydantic validates only this one on Python < 3.12
 
-from endopipe.pipeline.stage import write_json
+from endopipe.pipeline.stage import read_summary, write_json
+from endopipe.stages.mesh.summary import MeshSummary
 from endopipe.stages.surface.mesh import RawMesh, read_mesh, write_mesh
 
 MESH_FILE = "mesh.ply"
@@ -105,6 +107,12 @@ class MeshView:
         obj = self.folder / OBJ_FILE
         self.obj_path: Path | None = obj if obj.is_file() else None
         self.metrics: MeshMetrics = self._read_metrics(self.folder / METRICS_FILE)
+
+    @cached_property
+    def summary(self) -> MeshSummary:
+        """The stage's summary in its manifest, as the model the stage wrote (SummaryMismatch
+        when the folder was written with other fields)."""
+        return read_summary(self.folder, MeshSummary)
 
     @staticmethod
     def _read_metrics(path: Path) -> MeshMetrics:

@@ -365,7 +365,7 @@ class PoseRefineConfig(_Section):
         "off",
         description="auto: on when the poses come from COLMAP SfM (poses.source=colmap), off "
         "for ground-truth or file poses; on / off: always / never. Off by default: on a tube "
-        "with known perturbed poses it did not yet reduce the pose error (issue 16).",
+        "with known perturbed poses it did not yet reduce the pose error.",
     )
     lr: float = Field(
         1e-3,

@@ -20,8 +20,7 @@ from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.model import NerfModel
 from endopipe.stages.nerf.sampling import weight_quantiles
 from endopipe.stages.nerf.scene import SceneBox
-
-MODEL_FILE = "model.pt"
+from endopipe.stages.nerf.view import MODEL_FILE
 
 
 def save_model(path: Path, model: NerfModel, meta: dict | None = None) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from endopipe.pipeline.errors import EndopipeError, InputError
-from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
+from endopipe.pipeline.stage import Stage, StageContext, write_json
 from endopipe.stages.camera import Camera, lens_valid_mask, pixel_rays
 from endopipe.stages.io.ground_truth import depth_of_frame
 from endopipe.stages.metrics.depth import depth_sequence_metrics
@@ -25,11 +25,12 @@ from endopipe.stages.nerf.bounds import PriorBounds
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.data import FrameSet, holdout_split
 from endopipe.stages.nerf.pose_refine import record, refinement_wanted
-from endopipe.stages.nerf.render import MODEL_FILE, render_image, save_model
+from endopipe.stages.nerf.render import render_image, save_model
 from endopipe.stages.nerf.scene import SceneBox
 from endopipe.stages.nerf.sparse_depth import sparse_depth_targets
+from endopipe.stages.nerf.summary import NerfSummary
 from endopipe.stages.nerf.train import CHECKPOINT, Trainer, auto_threads, pick_device
-from endopipe.stages.nerf.view import NerfView
+from endopipe.stages.nerf.view import MODEL_FILE, NerfView
 
 
 def load_prior(centerline) -> object:
@@ -59,7 +60,7 @@ def fit_box(
     preset's ellipsoid around a colon ended the box 6.5 radii down the lumen, the tube's at
     14.5: the far lumen had no field). With `field.warp: auto` the grid is warped only when
     the SfM `points` lie mostly near the camera path, where the warp keeps its fine cells
-    (C3VD: 14% of them do, the bench colon 91%; README, stop 24)."""
+    (C3VD: 14% of them do, the bench colon 91%)."""
     centres = np.array([c[:3, 3] for c in c2w])
     box0 = SceneBox.fit(centres, float(prior.typical_radius), centres)
     box0.lo, box0.hi = np.full(3, -1.0), np.full(3, 1.0)
@@ -172,23 +173,6 @@ def build_frames(ingest, poses, device: torch.device):
     masks = np.stack([ingest.mask(i) > 127 for i in ids]) & lens_valid_mask(k)[None]
     c2w = [poses.c2w[i] for i in ids]
     return ids, k, images, masks, c2w
-
-
-class NerfSummary(Summary):
-    steps: int
-    train_frames: int
-    heldout_frames: int
-    train_s: float
-    rays_per_s: float
-    render_ms: float | None = None
-    heldout_psnr: float | None = None
-    depth: dict | None = None
-    resumed_from: int = 0
-    device: str = "cpu"
-    threads: int = 1
-    pose_refine: dict | None = None  # ran, how far the cameras moved (pose_refine.record)
-    grid_warp: bool | None = None  # the grid warped beyond the camera path (field.warp)
-    core_fraction: float | None = None  # L_prior's empty core used (fraction of the wall)
 
 
 class Nerf(Stage):

@@ -14,13 +14,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from pydantic import BaseModel
 
-from endopipe.pipeline.cache import Manifest
-from endopipe.stages.nerf.render import MODEL_FILE, load_model
+from endopipe.pipeline.stage import read_summary
+from endopipe.stages.nerf.summary import NerfSummary
 
 if TYPE_CHECKING:
     from endopipe.stages.nerf.model import NerfModel
     from endopipe.stages.poses.view import PosesView
 
+MODEL_FILE = "model.pt"
 TRAIN_LOG_FILE = "train_log.csv"
 LOSS_PLOT_FILE = "loss.png"
 HELDOUT_PLOT_FILE = "heldout.png"
@@ -59,8 +60,16 @@ class NerfView:
         """model.pt: config, scene box, weights and meta (frame ids, train / held-out, units)."""
         return self.folder / MODEL_FILE
 
+    @cached_property
+    def summary(self) -> NerfSummary:
+        """The stage's summary in its manifest, as the model the stage wrote (SummaryMismatch
+        when the folder was written with other fields)."""
+        return read_summary(self.folder, NerfSummary)
+
     def model(self, device: str = "cpu") -> NerfModel:
         """The trained NerfModel, in eval mode; its `meta` says which frames were held out."""
+        from endopipe.stages.nerf.render import load_model  # torch: only to load the model
+
         return load_model(self.model_path, device)
 
     # --- cameras ------------------------------------------------------------------------------
@@ -125,9 +134,3 @@ class NerfView:
     def heldout(self) -> list[int]:
         """The frames held out of training (and evaluated)."""
         return list((self.metrics or {}).get("heldout", []))
-
-    @property
-    def summary(self) -> dict[str, Any]:
-        """The stage's summary in its manifest (steps, train_s, heldout_psnr, depth, ...)."""
-        manifest = Manifest.load(self.folder)
-        return dict(manifest.summary) if manifest is not None else {}

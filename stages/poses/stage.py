@@ -20,24 +20,24 @@ from pathlib import Path
 import numpy as np
 
 from endopipe.pipeline.errors import ConfigError, InputError, StageFailed
-from endopipe.pipeline.stage import Stage, StageContext, Summary, write_json
+from endopipe.pipeline.stage import Stage, StageContext, write_json
 from endopipe.stages.camera import Camera, apply_sim3, lens_valid_mask, umeyama
 from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.io.colmap_model import (
     PoseSet,
     camera_to_colmap,
     read_colmap_model,
-    read_transforms_json,
     reconstruction_points,
     trailing_number,
     write_ply,
     write_text_model,
-    write_transforms_json,
 )
 from endopipe.stages.io.ground_truth import poses_by_frame
+from endopipe.stages.io.transforms_json import read_transforms_json, write_transforms_json
 from endopipe.stages.metrics.depth import pose_metrics, registered_fraction
 from endopipe.stages.poses.config import PosesConfig
 from endopipe.stages.poses.estimate import Estimate
+from endopipe.stages.poses.summary import PosesSummary
 from endopipe.stages.poses.verdict import (
     PoseVerdict,
     evidence_from_reconstruction,
@@ -48,34 +48,6 @@ from endopipe.stages.poses.verdict import (
 from endopipe.stages.poses.view import CamerasFile, PosesView
 
 __all__ = ["Poses", "PosesConfig", "PosesSummary"]
-
-
-class PosesSummary(Summary):
-    source: str
-    registered: int
-    total: int
-    registered_fraction: float
-    unregistered: str
-    camera_model: str
-    intrinsics: str
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    metric: bool
-    aligned_to_gt: bool
-    points: int
-    seconds: float
-    mapper: str = ""
-    verdict: str = "not assessed"
-    verdict_reasons: str = ""
-    doubtful_frames: str = ""
-    mappers_disagreement_pct: float | None = None
-    depth_drift: float | None = None
-    #: with ground truth: the ATE (% of path) the mappers not kept would have given
-    others_ate_percent: dict[str, float] = {}
-    #: share of the field of view's pixels the lens model gives a ray (the rest: no depth)
-    lens_reach: float | None = None
 
 
 class Poses(Stage):
@@ -313,7 +285,7 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Esti
             "mean_reprojection_px": float(rec.compute_mean_reprojection_error()),
             "mean_track_length": float(rec.compute_mean_track_length()),
             "mean_points_per_frame": float(rec.compute_mean_observations_per_reg_image()),
-            **timings,
+            "timings": timings,
         },
     )
 
@@ -338,7 +310,7 @@ def triangulate(est: Estimate, ingest: IngestView, cfg: PosesConfig, ctx: StageC
         return
     finally:
         clean_scratch(scratch, cfg.keep_database, ("images", "masks", "triangulated"))
-    est.info["triangulation_s"] = round(time.perf_counter() - t, 2)
+    est.info.setdefault("timings", {})["triangulation_s"] = round(time.perf_counter() - t, 2)
     if len(xyz) < MIN_TRIANGULATED_POINTS:
         ctx.log(f"no sparse points: triangulation from the known poses found only {len(xyz)}")
         return

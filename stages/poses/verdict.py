@@ -276,7 +276,7 @@ def lens_disagreement(kept: FrameEvidence, other: FrameEvidence, cfg: VerdictCon
     over `max_focal_ratio`; else None. Why: on C3VD the incremental mapper, sound by every
     other test, settled at 413 px against the global mapper's 156 (25 against 46 degrees at
     half the frame height; the scope's calibration says 45), and its depth ranked pixels worse
-    than the radial guess (README, stop 26). Paths can agree while lenses do not."""
+    than the radial guess. Paths can agree while lenses do not."""
     a, b = kept.focal_px, other.focal_px
     if a is None or b is None or min(a, b) <= 0 or max(a, b) / min(a, b) <= cfg.max_focal_ratio:
         return None

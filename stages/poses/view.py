@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 from pydantic import BaseModel, Field, model_validator
 
+from endopipe.pipeline.stage import read_summary
 from endopipe.stages.camera import Camera
 from endopipe.stages.io.colmap_model import camera_from_colmap, camera_to_colmap
+from endopipe.stages.poses.summary import PosesSummary
 from endopipe.stages.poses.verdict import PoseVerdict
 
 
@@ -122,6 +125,12 @@ class PosesView:
         self.c2w: dict[int, np.ndarray] = {
             f.index: np.array(f.c2w, dtype=np.float64) for f in self.file.frames if f.registered
         }
+
+    @cached_property
+    def summary(self) -> PosesSummary:
+        """The stage's summary in its manifest, as the model the stage wrote (SummaryMismatch
+        when the folder was written with other fields)."""
+        return read_summary(self.folder, PosesSummary)
 
     @property
     def registered(self) -> list[int]:

@@ -8,6 +8,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from endopipe.pipeline.stage import read_summary
+from endopipe.stages.report.summary import ReportSummary
+
 #: The one file the report stage writes.
 PAGE = "report.html"
 
@@ -22,3 +25,8 @@ class ReportView:
     def page(self) -> Path:
         """The self-contained HTML page (it may not exist: check `.is_file()`)."""
         return self.folder / PAGE
+
+    @property
+    def summary(self) -> ReportSummary:
+        """The stage's summary in its manifest (SummaryMismatch when written with other fields)."""
+        return read_summary(self.folder, ReportSummary)

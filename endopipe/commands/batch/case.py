@@ -67,7 +67,8 @@ def process_case(
         for name, manifest in manifests.items():
             row.compute_s += manifest.wall_s
             row.peak_rss_mb = max(row.peak_rss_mb, manifest.peak_rss_mb)
-            for key, value in numeric_leaves(manifest.summary).items():
+            summary = pipe.view(case_dir, name).summary  # the stage's typed model
+            for key, value in numeric_leaves(summary.model_dump(mode="json")).items():
                 row.metrics[f"{name}.{key}"] = value
         if "poses" in manifests:
             note_pose_verdict(row, pipe.folder(case_dir, "poses"))

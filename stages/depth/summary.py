@@ -1,0 +1,36 @@
+"""The depth stage's summary, one model on both sides: the stage writes it into its manifest,
+`DepthView.summary` reads it back, and report, bench and batch read its fields by name."""
+
+from __future__ import annotations
+
+from endopipe.pipeline.stage import Summary
+from endopipe.stages.metrics.scores import DepthScores, ProtocolScores
+
+
+class DepthSummary(Summary):
+    frames: int
+    units: str
+    png_scale: float
+    ms_per_frame: float
+    bake_s: float
+    renderer: str
+    gt_kind: str | None = None  # exact | pseudo | relative; None without ground truth
+    median_scaled: DepthScores | None = None
+    sequence_scaled: DepthScores | None = None
+    affine_invariant: DepthScores | None = None
+    coverage: float | None = None  # share of valid ground-truth pixels that got a depth
+    unknown_share: float | None = None  # share of the lens's pixels with no depth
+    hazy_share: float | None = None  # ... of which the field spread over no one surface
+    #: the guesses' scores on our pixels (metrics.json `baselines`): radial, brightness
+    baselines: dict[str, ProtocolScores] | None = None
+    heldout_psnr: float | None = None
+    heldout_ssim: float | None = None
+
+    def scores(self) -> ProtocolScores:
+        """Our protocol blocks in the shape the guesses' have, to show them side by side."""
+        return ProtocolScores(
+            median_scaled=self.median_scaled,
+            sequence_scaled=self.sequence_scaled,
+            affine_invariant=self.affine_invariant,
+            frames=self.frames,
+        )

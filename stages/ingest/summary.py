@@ -1,0 +1,24 @@
+"""The ingest stage's summary, one model on both sides: the stage writes it into its manifest,
+`IngestView.summary` reads it back, and report, bench and batch read its fields by name."""
+
+from __future__ import annotations
+
+from endopipe.pipeline.stage import Summary
+
+
+class IngestSummary(Summary):
+    kind: str
+    source_frames: int | None  # None: unknown (decoding stopped early on a video of no length)
+    read: int  # frames decoded (fewer than source_frames when max_frames stopped decoding)
+    kept: int
+    dropped: dict[str, int]  # frames not kept, by reason
+    width: int
+    height: int
+    fov_shape: str
+    fov_fraction: float
+    mean_specular_fraction: float
+    has_intrinsics: bool
+    has_ground_truth: bool
+    gt_frames_without_depth: int = 0  # kept frames the ground truth has no depth for
+    gt_frames_without_pose: int = 0  # kept frames the ground truth has no pose for
+    warnings: list[str] = []  # one line each: what the user should know (shown in the report)

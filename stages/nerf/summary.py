@@ -1,0 +1,59 @@
+"""The nerf stage's summary, one model on both sides: the stage writes it into its manifest,
+`NerfView.summary` reads it back, and report, bench and batch read its fields by name."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict
+
+from endopipe.pipeline.stage import Summary
+from endopipe.stages.metrics.scores import DepthScores
+
+
+class Movement(BaseModel):
+    """How far refinement moved the cameras: median and max over the frames (world units, % of
+    the camera path's length, degrees)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    median_translation: float | None = None
+    max_translation: float | None = None
+    median_translation_pct: float | None = None
+    max_translation_pct: float | None = None
+    median_rotation_deg: float | None = None
+    max_rotation_deg: float | None = None
+
+
+class PoseRefineRecord(Movement):
+    """Whether pose refinement ran and how far the training frames' cameras moved (and, when
+    they were fitted too, the held-out ones')."""
+
+    ran: bool
+    heldout_refined: bool | None = None
+    heldout: Movement | None = None
+
+
+class NerfDepthScores(BaseModel):
+    """The held-out frames' depth against the ground truth (metric protocols only)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    median_scaled: DepthScores | None = None
+    sequence_scaled: DepthScores | None = None
+    unscaled: DepthScores | None = None
+
+
+class NerfSummary(Summary):
+    steps: int
+    train_frames: int
+    heldout_frames: int
+    train_s: float
+    rays_per_s: float
+    render_ms: float | None = None
+    heldout_psnr: float | None = None
+    depth: NerfDepthScores | None = None
+    resumed_from: int = 0
+    device: str = "cpu"
+    threads: int = 1
+    pose_refine: PoseRefineRecord | None = None
+    grid_warp: bool | None = None  # the grid warped beyond the camera path (field.warp)
+    core_fraction: float | None = None  # L_prior's empty core used (fraction of the wall)

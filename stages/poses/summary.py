@@ -1,0 +1,52 @@
+"""The poses stage's summary, one model on both sides: the stage writes it into its manifest,
+`PosesView.summary` reads it back, and report, bench and batch read its fields by name."""
+
+from __future__ import annotations
+
+from endopipe.pipeline.stage import Summary
+
+
+class PosesSummary(Summary):
+    source: str  # colmap | gt | file
+    registered: int
+    total: int
+    registered_fraction: float
+    unregistered: str  # frame ranges, e.g. "3-5, 9"
+    camera_model: str  # COLMAP's name of the camera model
+    intrinsics: str  # fixed | refined | estimated
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    metric: bool
+    aligned_to_gt: bool
+    points: int
+    seconds: float
+    # --- the reconstruction (SfM, or triangulated from known poses) ------------------------
+    mapper: str = ""  # the mapper kept: global | incremental
+    models: int = 0  # models the mapper split the sequence into
+    model_sizes: list[int] = []
+    merge: str = ""  # what merging the models did
+    merged_frames: int = 0
+    mean_reprojection_px: float | None = None
+    mean_track_length: float | None = None
+    mean_points_per_frame: float | None = None
+    file: str | None = None  # source: file, the file the poses came from
+    sim3_scale: float | None = None  # aligned to the ground truth: the similarity's scale
+    #: seconds per step: features_s, matching_s, <mapper>_mapping_s, triangulation_s
+    timings: dict[str, float] = {}
+    # --- the verdict -------------------------------------------------------------------------
+    verdict: str = "not assessed"
+    verdict_reasons: str = ""
+    doubtful_frames: str = ""
+    mappers_disagreement_pct: float | None = None
+    depth_drift: float | None = None
+    # --- against ground truth poses ------------------------------------------------------------
+    ate_mm: float | None = None  # in the ground truth's units
+    ate_percent_of_path: float | None = None
+    rre_deg: float | None = None
+    gt_path_length_mm: float | None = None
+    #: the ATE (% of path) the mappers not kept would have given
+    others_ate_percent: dict[str, float] = {}
+    #: share of the field of view's pixels the lens model gives a ray (the rest: no depth)
+    lens_reach: float | None = None
