@@ -15,9 +15,11 @@ from scipy.spatial.transform import Rotation
 
 from endopipe.pipeline.errors import InputError
 from endopipe.stages.io import c3vd, simcol3d
-from endopipe.stages.io.datasets import detect_format, find_cases
-from endopipe.stages.io.ground_truth import GroundTruth, GroundTruthSource, open_ground_truth
-from endopipe.stages.io.sources import ImageFolderSource, open_input
+from endopipe.stages.io.cases import detect_format, find_cases
+from endopipe.stages.io.datasets import open_ground_truth
+from endopipe.stages.io.ground_truth import GroundTruth, GroundTruthSource
+from endopipe.stages.io.images import ImageFolderSource
+from endopipe.stages.io.sources import open_input
 from tests.conftest import textured_frames, write_video
 
 W, H, N = 128, 96, 8

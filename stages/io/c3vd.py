@@ -18,12 +18,13 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from endopipe.pipeline.errors import InputError
 from endopipe.stages.camera import Camera
-from endopipe.stages.io.sources import ImageListSource, load_intrinsics_file
+from endopipe.stages.io.frame_truth import NumberedGroundTruth, numbered
+from endopipe.stages.io.images import ImageListSource
+from endopipe.stages.io.intrinsics import load_intrinsics_file
 
 NAME = "c3vd"
 LAYOUT = "a folder of NNNN_color.png with NNNN_depth.tiff and pose.txt"
@@ -31,21 +32,6 @@ GT_KIND = "exact"
 COLOR = re.compile(r"^(\d+)_color\.png$", re.IGNORECASE)
 DEPTH = re.compile(r"^(\d+)_depth\.tiff?$", re.IGNORECASE)
 DEPTH_RANGE_MM = 100.0  # uint16 full scale
-
-
-def numbered(folder: Path, pattern: re.Pattern[str]) -> list[tuple[int, Path]]:
-    """(number, file) for files whose name matches `pattern`, sorted by number."""
-    if not folder.is_dir():
-        return []
-    out = [(int(m.group(1)), p) for p in folder.iterdir() if (m := pattern.match(p.name))]
-    return sorted(out)
-
-
-def numbered_file(numbers: list[int], files: dict[int, Path], source_index: int) -> Path | None:
-    """The file of the frame at `source_index` (position in `numbers`), None when it has none."""
-    if not 0 <= source_index < len(numbers):
-        return None
-    return files.get(numbers[source_index])
 
 
 def is_sequence(path: Path) -> bool:
@@ -95,55 +81,15 @@ def find_intrinsics(seq: Path) -> Camera | None:
     return None
 
 
-class C3VDSource(ImageListSource):
-    kind = "c3vd"
-
-    def ground_truth(self) -> C3VDGroundTruth | None:
-        return C3VDGroundTruth(self.path) if self.gt_dir is not None else None
-
-
-def open_sequence(path: Path, intrinsics: Camera | None = None) -> C3VDSource:
-    path = Path(path)
-    frames = numbered(path, COLOR)
-    if not frames:
-        raise InputError(f"{path} is not a C3VD sequence ({LAYOUT})")
-    intrinsics = intrinsics or find_intrinsics(path)
-    has_gt = (path / "pose.txt").is_file() or bool(numbered(path, DEPTH))
-    return C3VDSource(path, [f for _, f in frames], intrinsics, path if has_gt else None)
-
-
-def ground_truth(path: Path) -> C3VDGroundTruth:
-    return C3VDGroundTruth(path)
-
-
-class C3VDGroundTruth:
+class C3VDGroundTruth(NumberedGroundTruth):
     """Depth tiffs and pose.txt of one C3VD sequence, indexed by source_index."""
 
     dataset = NAME
     kind = GT_KIND
-    units = "mm"
-
-    def __init__(self, seq: Path) -> None:
-        self.dir = Path(seq)
-        self.numbers = [n for n, _ in numbered(self.dir, COLOR)]
-        self._depth = dict(numbered(self.dir, DEPTH))
-
-    def depth(self, source_index: int) -> np.ndarray | None:
-        path = numbered_file(self.numbers, self._depth, source_index)
-        if path is None:
-            return None
-        raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if raw is None:
-            raise InputError(f"cannot read C3VD depth {path}")
-        if raw.ndim == 3:
-            raw = raw[..., 0]
-        return decode_depth(raw)
-
-    def has_depth(self, source_index: int) -> bool:
-        return numbered_file(self.numbers, self._depth, source_index) is not None
-
-    def depth_count(self) -> int:
-        return len(self._depth)
+    title = "C3VD"
+    frame_pattern = COLOR
+    depth_pattern = DEPTH
+    decode_depth = staticmethod(decode_depth)
 
     def has_poses(self) -> bool:
         return (self.dir / "pose.txt").is_file()
@@ -160,3 +106,22 @@ class C3VDGroundTruth:
             f"{self.dir / 'pose.txt'} has {len(lines)} poses for {len(self.numbers)} frames "
             f"numbered up to {max(self.numbers)}"
         )
+
+
+class C3VDSource(ImageListSource):
+    kind = NAME
+    truth = C3VDGroundTruth
+
+
+def open_sequence(path: Path, intrinsics: Camera | None = None) -> C3VDSource:
+    path = Path(path)
+    frames = numbered(path, COLOR)
+    if not frames:
+        raise InputError(f"{path} is not a C3VD sequence ({LAYOUT})")
+    intrinsics = intrinsics or find_intrinsics(path)
+    has_gt = (path / "pose.txt").is_file() or bool(numbered(path, DEPTH))
+    return C3VDSource(path, [f for _, f in frames], intrinsics, path if has_gt else None)
+
+
+def ground_truth(path: Path) -> C3VDGroundTruth:
+    return C3VDGroundTruth(path)

@@ -23,8 +23,9 @@ import numpy as np
 
 from endopipe.pipeline.errors import InputError
 from endopipe.stages.camera import Camera
-from endopipe.stages.io.c3vd import numbered, numbered_file
-from endopipe.stages.io.sources import ImageListSource, load_intrinsics_file
+from endopipe.stages.io.frame_truth import NumberedGroundTruth, numbered
+from endopipe.stages.io.images import ImageListSource
+from endopipe.stages.io.intrinsics import load_intrinsics_file
 
 NAME = "c3vd_preview"
 LAYOUT = "rgb/NNNN.png with depth_vis_gray/NNNN.png (relative depth only)"
@@ -42,8 +43,46 @@ def is_sequence(path: Path) -> bool:
     return bool(numbered(path / "rgb", NUMBERED)) and (path / "depth_vis_gray").is_dir()
 
 
+class C3VDPreviewGroundTruth(NumberedGroundTruth):
+    """The grey depth panel per frame, as float32 grey levels (0 = invalid): relative only."""
+
+    dataset = NAME
+    kind = GT_KIND
+    units = "relative"
+    title = "C3VD preview"
+    frame_pattern = NUMBERED
+    depth_pattern = NUMBERED
+    frame_folder = "rgb"
+    depth_folder = "depth_vis_gray"
+    read_flag = cv2.IMREAD_GRAYSCALE
+
+    def __init__(self, seq: Path) -> None:
+        super().__init__(seq)
+        # The panel is one column wider than the RGB panel (447 vs 446): depth is cropped to the
+        # frames' width, read once (every frame of the video has the same size).
+        first = cv2.imread(str(self.frames[0])) if self.frames else None
+        self._width = first.shape[1] if first is not None else None
+
+    def decode_depth(self, raw: np.ndarray) -> np.ndarray:
+        if self._width is not None and raw.shape[1] > self._width:
+            raw = raw[:, : self._width]
+        return without_codec_edge(raw).astype(np.float32)  # 0 = invalid (DESIGN §4)
+
+
+def without_codec_edge(panel: np.ndarray) -> np.ndarray:
+    """The grey panel with 0 (no render) and every pixel within `CODEC_EDGE_PX` of a 0 set to
+    0: there the codec blended the wall's grey with the black outside, so the value is no
+    depth."""
+    rendered = (panel > 0).astype(np.uint8)
+    if rendered.all():
+        return panel
+    distance = cv2.distanceTransform(rendered, cv2.DIST_L2, 5)
+    return np.where(distance > CODEC_EDGE_PX, panel, 0).astype(panel.dtype)
+
+
 class C3VDPreviewSource(ImageListSource):
     kind = NAME
+    truth = C3VDPreviewGroundTruth
 
 
 def open_sequence(path: Path, intrinsics: Camera | None = None) -> C3VDPreviewSource:
@@ -58,55 +97,3 @@ def open_sequence(path: Path, intrinsics: Camera | None = None) -> C3VDPreviewSo
 
 def ground_truth(path: Path) -> C3VDPreviewGroundTruth:
     return C3VDPreviewGroundTruth(path)
-
-
-class C3VDPreviewGroundTruth:
-    """The grey depth panel per frame, as float32 grey levels (0 = invalid): relative only."""
-
-    dataset = NAME
-    kind = GT_KIND
-    units = "relative"
-
-    def __init__(self, seq: Path) -> None:
-        self.dir = Path(seq)
-        frames = numbered(self.dir / "rgb", NUMBERED)
-        self.numbers = [n for n, _ in frames]
-        self._depth = dict(numbered(self.dir / "depth_vis_gray", NUMBERED))
-        # The panel is one column wider than the RGB panel (447 vs 446): depth is cropped to the
-        # frames' width, read once (every frame of the video has the same size).
-        first = cv2.imread(str(frames[0][1])) if frames else None
-        self._width = first.shape[1] if first is not None else None
-
-    def depth(self, source_index: int) -> np.ndarray | None:
-        path = numbered_file(self.numbers, self._depth, source_index)
-        if path is None:
-            return None
-        raw = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if raw is None:
-            raise InputError(f"cannot read C3VD preview depth {path}")
-        if self._width is not None and raw.shape[1] > self._width:
-            raw = raw[:, : self._width]
-        return without_codec_edge(raw).astype(np.float32)  # 0 = invalid (DESIGN §4)
-
-    def has_depth(self, source_index: int) -> bool:
-        return numbered_file(self.numbers, self._depth, source_index) is not None
-
-    def depth_count(self) -> int:
-        return len(self._depth)
-
-    def has_poses(self) -> bool:
-        return False
-
-    def poses(self) -> list[np.ndarray]:
-        return []
-
-
-def without_codec_edge(panel: np.ndarray) -> np.ndarray:
-    """The grey panel with 0 (no render) and every pixel within `CODEC_EDGE_PX` of a 0 set to
-    0: there the codec blended the wall's grey with the black outside, so the value is no
-    depth."""
-    rendered = (panel > 0).astype(np.uint8)
-    if rendered.all():
-        return panel
-    distance = cv2.distanceTransform(rendered, cv2.DIST_L2, 5)
-    return np.where(distance > CODEC_EDGE_PX, panel, 0).astype(panel.dtype)

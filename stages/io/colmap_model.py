@@ -1,18 +1,17 @@
-"""COLMAP models and nerfstudio's transforms.json: read and write, conventions converted once.
+"""COLMAP models: read and written through pycolmap, conventions converted once.
 
 Conventions (DESIGN §4): endopipe poses are OpenCV camera-to-world (x right, y down, z forward)
 and its principal points use the OpenCV pixel convention (the centre of the top-left pixel is
 (0, 0)). COLMAP stores world-to-camera poses and puts that pixel centre at (0.5, 0.5), so a COLMAP
-principal point is the OpenCV one + 0.5. nerfstudio's transforms.json uses OpenGL camera axes
-(x right, y up, z backward) and, like COLMAP, pixel centres at +0.5.
+principal point is the OpenCV one + 0.5. nerfstudio's transforms.json is transforms_json.py.
 
 There is one camera type, `Camera`: `camera_from_colmap` / `camera_to_colmap` convert it to and
-from COLMAP's (model name + params), lens distortion included both ways.
+from COLMAP's (model name + params), lens distortion included both ways. pycolmap is imported
+inside the functions that need it: cv2 must be imported first (see `endopipe.stages`).
 """
 
 from __future__ import annotations
 
-import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,10 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from endopipe.pipeline.errors import InputError
-from endopipe.stages.camera import Camera, matrix_to_quat_wxyz
-
-#: c2w_opengl = c2w_opencv @ OPENGL_FROM_OPENCV (and back: the matrix is its own inverse).
-OPENGL_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+from endopipe.stages.camera import Camera
 
 #: COLMAP's parameter names per camera model (pycolmap's `params_info`), and the lens of
 #: endopipe's `Camera` each one is: "opencv" (radial-tangential) or "fisheye" (equidistant;
@@ -137,40 +133,58 @@ def c2w_from_cam_from_world(matrix_3x4: np.ndarray) -> np.ndarray:
     return np.linalg.inv(w2c)
 
 
+def reconstruction_from_poses(camera: Camera, c2w: dict[str, np.ndarray], model: str | None = None):
+    """A pycolmap.Reconstruction of one camera and posed images, without tracks.
+
+    `model` is the COLMAP camera model to give the camera as (default: the smallest that holds
+    its lens). Image ids follow the order of `c2w`.
+    """
+    import pycolmap
+
+    name, params = camera_to_colmap(camera, model)
+    rec = pycolmap.Reconstruction()
+    cam = pycolmap.Camera(
+        model=name, width=camera.width, height=camera.height, params=params, camera_id=1
+    )
+    rec.add_camera_with_trivial_rig(cam)
+    for image_id, (image_name, pose) in enumerate(c2w.items(), start=1):
+        image = pycolmap.Image(name=image_name, camera_id=1, image_id=image_id)
+        rec.add_image_with_trivial_frame(image, cam_from_world(pose))
+    return rec
+
+
+def cam_from_world(c2w: np.ndarray):
+    """A 4x4 camera-to-world pose as COLMAP's cam_from_world (pycolmap.Rigid3d)."""
+    import pycolmap
+
+    return pycolmap.Rigid3d(np.linalg.inv(np.asarray(c2w, dtype=np.float64))[:3])
+
+
+def set_poses(rec, c2w: dict[str, np.ndarray]) -> int:
+    """Move the images of `rec` named in `c2w` to those camera-to-world poses (their tracks
+    stay; the points' reprojection errors are recomputed). Returns how many moved."""
+    moved = 0
+    for image in rec.images.values():
+        pose = c2w.get(image.name)
+        if pose is None or not image.has_pose:
+            continue
+        rec.frame(image.frame_id).rig_from_world = cam_from_world(pose)  # trivial rig
+        moved += 1
+    rec.update_point_3d_errors()
+    return moved
+
+
 def write_text_model(
     folder: Path, camera: Camera, c2w: dict[str, np.ndarray], model: str | None = None
 ) -> None:
-    """A COLMAP text model (cameras.txt, images.txt, empty points3D.txt) for poses without tracks.
+    """A COLMAP text model of poses without tracks (empty points3D.txt), written by pycolmap.
 
     `model` is the COLMAP camera model to write the camera as (default: the smallest that holds
-    its lens). Image ids follow the order of `c2w`; every image has an empty 2D-point line.
+    its lens). Image ids follow the order of `c2w`.
     """
+    folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    name, values = camera_to_colmap(camera, model)
-    params = " ".join(f"{p:.10g}" for p in values)
-    (folder / "cameras.txt").write_text(
-        "# Camera list with one line of data per camera:\n"
-        "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
-        f"# Number of cameras: 1\n1 {name} {camera.width} {camera.height} {params}\n"
-    )
-    lines = [
-        "# Image list with two lines of data per image:",
-        "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
-        "#   POINTS2D[] as (X, Y, POINT3D_ID)",
-        f"# Number of images: {len(c2w)}, mean observations per image: 0",
-    ]
-    for image_id, (name, pose) in enumerate(c2w.items(), start=1):
-        w2c = np.linalg.inv(pose)
-        q = matrix_to_quat_wxyz(w2c[:3, :3])
-        t = w2c[:3, 3]
-        values = " ".join(f"{v:.17g}" for v in (*q, *t))
-        lines += [f"{image_id} {values} 1 {name}", ""]
-    (folder / "images.txt").write_text("\n".join(lines) + "\n")
-    (folder / "points3D.txt").write_text(
-        "# 3D point list with one line of data per point:\n"
-        "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n"
-        "# Number of points: 0, mean track length: 0\n"
-    )
+    reconstruction_from_poses(camera, c2w, model).write_text(str(folder))
 
 
 def read_colmap_model(folder: Path) -> PoseSet:
@@ -215,91 +229,13 @@ def reconstruction_points(rec) -> tuple[np.ndarray, np.ndarray]:
     return xyz, rgb
 
 
-def write_transforms_json(
-    path: Path,
-    camera: Camera,
-    frames: list[tuple[str, str | None, np.ndarray]],
-    extra: dict | None = None,
-) -> None:
-    """nerfstudio's transforms.json: `frames` is (file_path, mask_path, c2w OpenCV) per frame.
-    The lens is nerfstudio's OPENCV (k1, k2, p1, p2, and k3 when set) or OPENCV_FISHEYE."""
-    fisheye = camera.distorted and camera.model == "fisheye"
-    data: dict = {
-        "camera_model": "OPENCV_FISHEYE" if fisheye else "OPENCV",
-        "fl_x": camera.fx,
-        "fl_y": camera.fy,
-        "cx": camera.cx + 0.5,
-        "cy": camera.cy + 0.5,
-        "w": camera.width,
-        "h": camera.height,
-    }
-    names = LENS_COEFFICIENTS["fisheye"] if fisheye else ("k1", "k2", "p1", "p2")
-    data |= dict.fromkeys(names, 0.0)
-    if camera.distorted:
-        coefficients = dict(zip(LENS_COEFFICIENTS[camera.model], camera.dist or [], strict=False))
-        data |= {k: float(c) for k, c in coefficients.items() if k in names or c != 0.0}
-    data.update(extra or {})
-    data["frames"] = []
-    for file_path, mask_path, c2w in frames:
-        entry = {"file_path": file_path}
-        if mask_path is not None:
-            entry["mask_path"] = mask_path
-        entry["transform_matrix"] = (np.asarray(c2w) @ OPENGL_FROM_OPENCV).tolist()
-        data["frames"].append(entry)
-    path.write_text(json.dumps(data, indent=2) + "\n")
-
-
-def read_transforms_json(path: Path) -> PoseSet:
-    """A nerfstudio / instant-ngp transforms.json as a PoseSet (poses converted to OpenCV)."""
-    try:
-        data = json.loads(Path(path).read_text())
-        frames = data["frames"]
-        poses = {}
-        for f in frames:
-            c2w = np.array(f["transform_matrix"], dtype=np.float64)
-            if c2w.shape == (3, 4):
-                c2w = np.vstack([c2w, [0, 0, 0, 1]])
-            if c2w.shape != (4, 4):
-                raise ValueError(f"transform_matrix of {f['file_path']} is not 4x4")
-            poses[Path(f["file_path"]).name] = c2w @ OPENGL_FROM_OPENCV
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise InputError(
-            f"cannot read {path} as transforms.json ({_short(e)}); it needs 'frames' with "
-            "'file_path' and 'transform_matrix'"
-        ) from None
-    camera = None
-    src = frames[0] if frames and "fl_x" in frames[0] else data
-    if "fl_x" in src and "w" in src and "h" in src:
-        fx = float(src["fl_x"])
-        lens = "fisheye" if src.get("camera_model") == "OPENCV_FISHEYE" else "opencv"
-        dist = [float(src.get(k, 0.0)) for k in LENS_COEFFICIENTS[lens]]
-        camera = Camera(
-            width=int(src["w"]),
-            height=int(src["h"]),
-            fx=fx,
-            fy=float(src.get("fl_y", fx)),
-            cx=float(src.get("cx", src["w"] / 2)) - 0.5,
-            cy=float(src.get("cy", src["h"] / 2)) - 0.5,
-            model=lens if any(dist) else "pinhole",
-            dist=dist if any(dist) else None,
-        )
-        return PoseSet(camera, poses, colmap_model=camera_to_colmap(camera)[0])
-    return PoseSet(camera, poses)
-
-
 def write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray | None = None) -> None:
-    """A binary little-endian PLY point cloud (x, y, z float32 and red, green, blue uint8)."""
-    xyz = np.asarray(xyz, dtype=np.float32).reshape(-1, 3)
+    """A coloured point cloud as a binary PLY, written by trimesh (grey when `rgb` is None)."""
+    import trimesh
+
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
     rgb = np.full((len(xyz), 3), 200, np.uint8) if rgb is None else np.asarray(rgb, np.uint8)
-    header = (
-        "ply\nformat binary_little_endian 1.0\n"
-        f"element vertex {len(xyz)}\n"
-        "property float x\nproperty float y\nproperty float z\n"
-        "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
-    )
-    rec = np.empty(len(xyz), dtype=[("p", "<f4", 3), ("c", "u1", 3)])
-    rec["p"], rec["c"] = xyz, rgb.reshape(-1, 3)
-    path.write_bytes(header.encode() + rec.tobytes())
+    trimesh.PointCloud(xyz, colors=rgb.reshape(-1, 3)).export(str(path), file_type="ply")
 
 
 def trailing_number(name: str) -> int | None:

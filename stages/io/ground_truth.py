@@ -1,10 +1,12 @@
 """Ground truth for evaluation, one implementation per input kind behind one small protocol.
 
 `GroundTruth` reads an endopipe case folder's `gt/` (DESIGN §5); the dataset readers in
-stages/io/ (hamlyn, c3vd, simcol3d) each bring their own class that reads the dataset's files in
-place. Every implementation answers in endopipe's conventions: depth is float32 z-depth in mm
-(0 = invalid) at the input frame's resolution, poses are OpenCV camera-to-world 4x4 in mm, and
-both are indexed by `source_index` (frame i of the input, as in 01_ingest/frames.json).
+stages/io/ (hamlyn, c3vd, simcol3d, c3vd_preview) each bring their own class that reads the
+dataset's files in place (on `frame_truth.PerFrameGroundTruth`), and
+`datasets.open_ground_truth` picks the one for a `gt_dir`. Every implementation answers in
+endopipe's conventions: depth is float32 z-depth in mm (0 = invalid) at the input frame's
+resolution, poses are OpenCV camera-to-world 4x4 in mm, and both are indexed by `source_index`
+(frame i of the input, as in 01_ingest/frames.json).
 `kind` says how far to trust it: "exact" (rendered or measured), "pseudo" (e.g. Hamlyn's
 stereo-derived depth) or "relative" (an affine proxy of depth in arbitrary units, e.g. C3VD's
 preview panel: compared only up to scale and shift, or by rank); evaluation outputs must carry
@@ -54,18 +56,16 @@ class GroundTruthSource(Protocol):
         ...
 
 
-def open_ground_truth(gt_dir: Path | str) -> GroundTruthSource:
-    """The ground truth behind a `gt_dir` (case.json / frames.json), whatever its format: the
-    one door every stage, command and report goes through (InputError when none is there)."""
-    gt_dir = Path(gt_dir)
-    if (gt_dir / "poses.json").is_file() or (gt_dir / "depth").is_dir():
-        return GroundTruth(gt_dir)
-    from endopipe.stages.io.datasets import READERS, detect_dataset
+def holds_case_truth(gt_dir: Path) -> bool:
+    """Whether `gt_dir` is an endopipe case folder's gt/ (poses.json and/or depth/)."""
+    return (gt_dir / "poses.json").is_file() or (gt_dir / "depth").is_dir()
 
-    name = detect_dataset(gt_dir)
-    if name is None:
+
+def open_case_truth(gt_dir: Path) -> GroundTruth:
+    """An endopipe case folder's gt/; InputError when it holds nothing endopipe reads."""
+    if not holds_case_truth(Path(gt_dir)):
         raise InputError(f"no ground truth that endopipe can read in {gt_dir}")
-    return READERS[name].ground_truth(gt_dir)
+    return GroundTruth(Path(gt_dir))
 
 
 class FrameRef(Protocol):

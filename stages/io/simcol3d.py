@@ -20,14 +20,14 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from endopipe.pipeline.errors import InputError
 from endopipe.stages.camera import Camera
-from endopipe.stages.io.c3vd import numbered, numbered_file
-from endopipe.stages.io.sources import ImageListSource
+from endopipe.stages.io.frame_truth import NumberedGroundTruth, numbered
+from endopipe.stages.io.images import ImageListSource
+from endopipe.stages.io.intrinsics import read_camera_matrix
 
 NAME = "simcol3d"
 LAYOUT = "Frames_<S>/FrameBuffer_N.png + Depth_N.png, ../SavedPosition_<S>.txt, ../cam.txt"
@@ -80,41 +80,8 @@ def pose_files(frames_dir: Path) -> tuple[Path, Path]:
 
 
 def read_intrinsics(frames_dir: Path, first_frame: Path) -> Camera | None:
-    path = frames_dir.parent / "cam.txt"
-    if not path.is_file():
-        return None
-    try:
-        K = np.array(path.read_text().replace(",", " ").split(), dtype=np.float64)
-    except ValueError:
-        raise InputError(f"{path} must hold a 3x3 camera matrix (9 numbers)") from None
-    if K.size != 9:
-        raise InputError(f"{path} holds {K.size} numbers; expected a 3x3 camera matrix")
-    image = cv2.imread(str(first_frame), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise InputError(f"cannot read image {first_frame}; remove it or replace it")
-    h, w = image.shape[:2]
-    return Camera(width=w, height=h, fx=K[0], fy=K[4], cx=K[2], cy=K[5])
-
-
-class SimCol3DSource(ImageListSource):
-    kind = "simcol3d"
-
-    def ground_truth(self) -> SimCol3DGroundTruth | None:
-        return SimCol3DGroundTruth(self.path) if self.gt_dir is not None else None
-
-
-def open_sequence(path: Path, intrinsics: Camera | None = None) -> SimCol3DSource:
-    path = Path(path)
-    frames = numbered(path, FRAME)
-    if not frames:
-        raise InputError(f"{path} is not a SimCol3D sequence ({LAYOUT})")
-    intrinsics = intrinsics or read_intrinsics(path, frames[0][1])
-    has_gt = bool(numbered(path, DEPTH)) or all(p.is_file() for p in pose_files(path))
-    return SimCol3DSource(path, [f for _, f in frames], intrinsics, path if has_gt else None)
-
-
-def ground_truth(path: Path) -> SimCol3DGroundTruth:
-    return SimCol3DGroundTruth(path)
+    """cam.txt beside the sequence folders, at the size of the frames."""
+    return read_camera_matrix(frames_dir.parent / "cam.txt", first_frame)
 
 
 def _read_rows(path: Path, width: int) -> np.ndarray:
@@ -132,34 +99,15 @@ def _read_rows(path: Path, width: int) -> np.ndarray:
     return np.array(rows, dtype=np.float64).reshape(-1, width)
 
 
-class SimCol3DGroundTruth:
+class SimCol3DGroundTruth(NumberedGroundTruth):
     """Depth pngs and Unity poses of one SimCol3D sequence, in endopipe's conventions."""
 
     dataset = NAME
     kind = GT_KIND
-    units = "mm"
-
-    def __init__(self, frames_dir: Path) -> None:
-        self.dir = Path(frames_dir)
-        self.numbers = [n for n, _ in numbered(self.dir, FRAME)]
-        self._depth = dict(numbered(self.dir, DEPTH))
-
-    def depth(self, source_index: int) -> np.ndarray | None:
-        path = numbered_file(self.numbers, self._depth, source_index)
-        if path is None:
-            return None
-        raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if raw is None:
-            raise InputError(f"cannot read SimCol3D depth {path}")
-        if raw.ndim == 3:
-            raw = raw[..., 0]
-        return decode_depth(raw)
-
-    def has_depth(self, source_index: int) -> bool:
-        return numbered_file(self.numbers, self._depth, source_index) is not None
-
-    def depth_count(self) -> int:
-        return len(self._depth)
+    title = "SimCol3D"
+    frame_pattern = FRAME
+    depth_pattern = DEPTH
+    decode_depth = staticmethod(decode_depth)
 
     def has_poses(self) -> bool:
         return all(p.is_file() for p in pose_files(self.dir))
@@ -177,3 +125,22 @@ class SimCol3DGroundTruth:
                 f"{max(self.numbers)}"
             )
         return [unity_to_opencv(positions[n], quats[n]) for n in self.numbers]
+
+
+class SimCol3DSource(ImageListSource):
+    kind = NAME
+    truth = SimCol3DGroundTruth
+
+
+def open_sequence(path: Path, intrinsics: Camera | None = None) -> SimCol3DSource:
+    path = Path(path)
+    frames = numbered(path, FRAME)
+    if not frames:
+        raise InputError(f"{path} is not a SimCol3D sequence ({LAYOUT})")
+    intrinsics = intrinsics or read_intrinsics(path, frames[0][1])
+    has_gt = bool(numbered(path, DEPTH)) or all(p.is_file() for p in pose_files(path))
+    return SimCol3DSource(path, [f for _, f in frames], intrinsics, path if has_gt else None)
+
+
+def ground_truth(path: Path) -> SimCol3DGroundTruth:
+    return SimCol3DGroundTruth(path)

@@ -40,7 +40,7 @@ def run_batch(
 ) -> list[CaseRow]:
     """Every case under `folder` through `pipe` with `case_fn` (top-level, picklable: it runs
     in worker processes or cluster jobs). Raises when a case failed, after writing the table."""
-    from endopipe.stages.io.datasets import find_cases
+    from endopipe.stages.io.cases import find_cases
 
     if until is not None:
         pipe.index(until)

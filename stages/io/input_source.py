@@ -1,0 +1,48 @@
+"""What every reader hands the pipeline: frames, with the intrinsics and truth they came with."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from endopipe.pipeline.cache import digest_path, digest_text
+from endopipe.stages.camera import Camera
+from endopipe.stages.io.ground_truth import GroundTruthSource, open_case_truth
+
+
+@dataclass
+class Frame:
+    source_index: int
+    time_s: float | None
+    rgb: np.ndarray  # HxWx3 uint8
+
+
+class InputSource:
+    """Frames plus whatever the input says about intrinsics and ground truth."""
+
+    kind: str = "video"
+
+    def __init__(self, path: Path, intrinsics: Camera | None, gt_dir: Path | None) -> None:
+        self.path = path
+        self.intrinsics = intrinsics
+        self.gt_dir = gt_dir
+
+    def frames(self) -> Iterator[Frame]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def frame_count(self) -> int | None:
+        return None
+
+    def digest(self) -> str:
+        parts = [digest_path(self.path)]
+        if self.intrinsics is not None:
+            parts.append(self.intrinsics.model_dump_json())
+        return digest_text("|".join(parts))
+
+    def ground_truth(self) -> GroundTruthSource | None:
+        """The input's ground truth for evaluation (None when it has none): an endopipe case
+        folder's gt/ here; a data set reader's source reads the set's own files instead."""
+        return open_case_truth(self.gt_dir) if self.gt_dir is not None else None
