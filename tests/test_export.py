@@ -17,21 +17,17 @@ import trimesh
 
 from endopipe.cli import build_pipeline, main
 from endopipe.commands import export
-from endopipe.commands.export import (
+from endopipe.commands.export import ExportResult
+from endopipe.commands.export.endonerf import (
     ENDONERF_AXES,
-    ExportResult,
     c2w_from_llff,
     endonerf_depth_scale,
     llff_matrix,
     read_endonerf,
-    read_nerfstudio,
 )
 from endopipe.pipeline.errors import EndopipeError
-from endopipe.stages.io.colmap_model import (
-    OPENGL_FROM_OPENCV,
-    read_colmap_model,
-    read_transforms_json,
-)
+from endopipe.stages.io.colmap_model import read_colmap_model
+from endopipe.stages.io.transforms_json import OPENGL_FROM_OPENCV, read_transforms_json
 from endopipe.stages.poses.view import CamerasFile
 from tests.handmade_case import UNREGISTERED, WALL_Z, H, W, make_case
 
@@ -74,18 +70,15 @@ def test_nerfstudio_round_trip(tmp_path: Path, camera_scale: int) -> None:
     result = export_case(case, "nerfstudio")
     out = case / "exports" / "nerfstudio"
     assert result.out == out and result.frames == 5
-    k, poses = read_nerfstudio(out)
+    pose_set = read_transforms_json(out / "transforms.json")  # the project's one reader
+    k, poses = pose_set.camera, pose_set.c2w
     expected_k = cameras_of(case).intrinsics().scaled(W, H)  # scaled to the exported images
-    for name in ("width", "height", "fx", "fy", "cx", "cy"):
+    for name in ("width", "height", "fx", "fy", "cx", "cy", "model", "dist"):
         assert getattr(k, name) == pytest.approx(getattr(expected_k, name)), name
     want = registered(case)
     assert sorted(poses) == [f"{i:06d}.png" for i in sorted(want)]
     for i, c2w in want.items():
         assert np.allclose(poses[f"{i:06d}.png"], c2w, atol=1e-9)
-    # the project's own transforms.json reader agrees (OpenGL <-> OpenCV done once)
-    pose_set = read_transforms_json(out / "transforms.json")
-    for i, c2w in want.items():
-        assert np.allclose(pose_set.c2w[f"{i:06d}.png"], c2w, atol=1e-9)
 
     data = json.loads((out / "transforms.json").read_text())
     frame = data["frames"][0]
@@ -130,8 +123,6 @@ def test_colmap_written_from_cameras_json(case: Path) -> None:
 
 
 def test_colmap_model_is_read_by_pycolmap(case: Path) -> None:
-    from endopipe.stages.io.colmap_model import read_colmap_model
-
     export_case(case, "colmap")
     pose_set = read_colmap_model(case / "exports" / "colmap")
     for i, c2w in registered(case).items():
