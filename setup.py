@@ -15,6 +15,6 @@ setup(
     packages=packages,
     package_data={
         "endopipe": ["configs/*.yaml"],
-        "endopipe.stages.report": ["templates/*.j2", "templates/*.css"],
+        "endopipe.stages.report": ["templates/*.j2", "templates/sections/*.j2", "templates/*.css"],
     },
 )

@@ -29,7 +29,7 @@ from endopipe.stages.report.kit import duration, fmt
 from endopipe.stages.report.load import STAGES
 from endopipe.stages.report.mesh3d import decimate, page_is_self_contained
 from endopipe.stages.report.render import build_report, render_report
-from endopipe.stages.report.sections import per_frame_series
+from endopipe.stages.report.sections import SECTIONS, per_frame_series
 from endopipe.stages.report.stage import Report, ReportConfig
 
 #: A cheaper config for tests that are not about the previews.
@@ -66,8 +66,12 @@ def test_pipeline_report_stage_rendered_every_section(tiny_case: Path) -> None:
 
 
 def test_full_report_shows_what_the_stages_wrote(tiny_case: Path) -> None:
+    """Every section available: a summary field renamed on the stage's side without the
+    report following (or the other way round) fails here, not as a blank cell."""
     page, info = render_report(tiny_case, folders_of(tiny_case), ReportConfig())
+    assert list(info.sections) == [key for key, _, _ in SECTIONS]
     assert all(info.sections.values()), info.sections
+    assert "Not available" not in page
     assert info.gt_kind == "exact"
     assert info.mesh_viewer.startswith("three.js")
     depth = read(tiny_case, "depth", "metrics.json")
@@ -135,6 +139,29 @@ def test_report_degrades_without_gt_and_downstream_stages(case_copy: Path) -> No
     assert page.count("Not available") >= 3
     assert "No ground truth" in page
     assert "arbitrary" in page  # not metric
+
+
+def test_a_summary_that_does_not_validate_is_named_not_blanked(case_copy: Path) -> None:
+    """05_depth written with another name for a summary field (another endopipe version, or an
+    edit): the depth section says so and how to fix it, shows none of the summary's figures, and
+    is marked not available; the other sections are untouched."""
+    manifest = folders_of(case_copy)["depth"] / "manifest.json"
+    written = json.loads(manifest.read_text())
+    written["summary"]["unknown_frac"] = written["summary"].pop("unknown_share")
+    manifest.write_text(json.dumps(written))
+    page, info = render_report(case_copy, folders_of(case_copy), FAST)
+    assert not info.sections["depth"]
+    assert all(ok for key, ok in info.sections.items() if key != "depth"), info.sections
+    depth = visible_text(section_html(page, "depth"))
+    assert depth.startswith(  # first thing under the section's title
+        "Depth Not available — 05_depth: the depth summary does not match DepthSummary "
+        "(unknown_frac: Extra inputs are not permitted)"
+    )
+    assert depth.count("re-run with --from depth") == 1
+    for figure in ("Rendering", "Depth stage render time", "No depth (unknown)"):
+        assert figure not in depth, figure
+    assert "Depth accuracy" in depth and "Previews" in depth  # what metrics.json and maps give
+    assert "re-run with --from" not in visible_text(page.replace(section_html(page, "depth"), ""))
 
 
 def test_report_says_which_metrics_are_missing(case_copy: Path) -> None:
@@ -284,7 +311,7 @@ def test_report_renders_in_headless_chromium(tiny_case: Path, tmp_path: Path) ->
     assert len(np.unique(body.reshape(-1, 3) // 16, axis=0)) > 50
 
 
-# --- what a user meets (issue 15) ---------------------------------------------------------------
+# --- what a user meets ------------------------------------------------------------------------
 
 
 def section_html(page: str, key: str) -> str:

@@ -1,42 +1,67 @@
-"""The page's HTML: the Jinja2 templates (templates/) and the building blocks sections use.
+"""The page's HTML: the Jinja2 templates (templates/) and the few calls Python makes into them.
 
-The markup lives in templates/kit.html.j2 (macros) and templates/report.html.j2 (the page);
-this module only calls them. Values that are already HTML are marked as such (`Markup`),
-everything else is escaped by Jinja2.
+All markup lives in templates/: kit.html.j2 (macros), sections/*.html.j2 (one per section) and
+report.html.j2 (the page). Python hands them values; Jinja2 escapes every value that is not
+already markup (a macro's output, or `Markup`).
 """
 
 from __future__ import annotations
 
-import json
 import math
+from collections.abc import Callable
 from functools import cache
 from pathlib import Path
 from typing import Any
 
 from jinja2 import Environment, FileSystemLoader, StrictUndefined, select_autoescape
-from markupsafe import Markup, escape
+from markupsafe import Markup
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 
 
+def number_text(value: Any) -> tuple[str | None, bool]:
+    """(shown, numeric) for a table cell: 4 significant digits and thousands separators for a
+    number, None for a missing or non-finite one, yes / no for a bool, other values as text.
+    The `number` macro adds the unit to numbers only."""
+    if value is None or (isinstance(value, str) and value == ""):
+        return None, False
+    if isinstance(value, bool):
+        return ("yes" if value else "no"), False
+    if isinstance(value, int):
+        return f"{value:,}", True
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            return None, False
+        if value != 0 and abs(value) < 1e-4:
+            return f"{value:.2g}", True
+        if abs(value) >= 1000:
+            return f"{value:,.0f}", True
+        if abs(value) >= 100:
+            return f"{value:.1f}", True
+        return f"{value:.4g}", True
+    return str(value), False
+
+
 @cache
 def environment() -> Environment:
-    return Environment(
+    env = Environment(
         loader=FileSystemLoader(TEMPLATES),
         autoescape=select_autoescape(["html", "j2"], default_for_string=True),
         undefined=StrictUndefined,
         keep_trailing_newline=True,
     )
+    env.filters["number_text"] = number_text
+    return env
 
 
-@cache
-def _macros() -> Any:
-    return environment().get_template("kit.html.j2").module
+def macro(template: str, name: str) -> Callable[..., Markup]:
+    """One macro of a template, to call from Python (its output is markup)."""
+    return getattr(environment().get_template(template).module, name)
 
 
-def _call(name: str, *args: Any, **kwargs: Any) -> str:
-    # plain str out: sections concatenate fragments, and Markup + str would escape the str
-    return str(getattr(_macros(), name)(*args, **kwargs))
+def render(template: str, **context: Any) -> Markup:
+    """A template of templates/ (e.g. "sections/depth.html.j2"), as markup to place in a page."""
+    return Markup(environment().get_template(template).render(**context).strip())
 
 
 def page(**context: Any) -> str:
@@ -45,96 +70,13 @@ def page(**context: Any) -> str:
     return environment().get_template("report.html.j2").render(sections=sections, **context)
 
 
-def not_available(reason: str) -> str:
-    return _call("not_available", reason)
+def not_available(reason: str) -> Markup:
+    return macro("kit.html.j2", "not_available")(reason)
 
 
-def badge(text: str, kind: str) -> str:
-    return _call("badge", text, kind)
-
-
-def kv_table(rows: list[tuple[str, str]], cls: str = "kv") -> str:
-    """Rows of (label text, value HTML)."""
-    return _call("kv_table", [(k, Markup(v)) for k, v in rows], cls)
-
-
-def figure_html(uri: str, caption: str, cls: str = "") -> str:
-    return _call("figure", uri, caption, cls)
-
-
-def card(label: str, value: str, note: str = "") -> str:
-    """A summary card; value and note are HTML."""
-    return _call("card", label, Markup(value), Markup(note))
-
-
-def details_json(summary: str, data: Any) -> str:
-    return _call("details_text", summary, json.dumps(data, indent=2, default=str))
-
-
-def grid(
-    head: list[str],
-    rows: list[list[str]],
-    cls: str = "grid",
-    num: tuple[int, ...] = (),
-    row_head: bool = False,
-) -> str:
-    """A table of column titles (text) and cells (HTML); `num`: right-aligned columns (indices
-    into `head`); `row_head`: each row starts with its label (HTML), under an empty corner."""
-    cells = [[Markup(c) for c in row] for row in rows]
-    return _call("grid", head, cells, cls, list(num), row_head)
-
-
-def grouped_table(groups: list[tuple[str, list[tuple[str, str, str]]]]) -> str:
-    """One table in titled groups of rows (label text, value HTML, note HTML); empty groups
-    are left out."""
-    shown = [
-        (title, [(k, Markup(v), Markup(n)) for k, v, n in rows]) for title, rows in groups if rows
-    ]
-    return _call("grouped_table", shown)
-
-
-def stages_table(rows: list[dict[str, Any]], total_wall: str, peak_mb: float) -> str:
-    """The stage table; a row is {stage, folder, manifest: False} or, with a manifest, also
-    {wall, share, peak_mb, files, size_mb, version, key, finished}."""
-    return _call("stages_table", rows, total_wall, peak_mb)
-
-
-def video(uri: str, note: str) -> str:
-    return _call("video", uri, note)
-
-
-def viewer(page_html: str, note: str) -> str:
-    """An interactive page in an iframe (srcdoc: the page escaped as an attribute value)."""
-    return _call("viewer", page_html, note)
-
-
-def text(value: Any) -> str:
-    """Escaped text, for the few places that assemble markup themselves."""
-    return str(escape(value))
-
-
-def fmt(value: Any, unit: str = "") -> str:
-    """A number for a table: 4 significant digits, thousands separators, '—' for missing."""
-    if value is None or value == "":
-        return '<span class="muted">&mdash;</span>'
-    if isinstance(value, bool):
-        return "yes" if value else "no"
-    if isinstance(value, int):
-        shown = f"{value:,}"
-    elif isinstance(value, float):
-        if not math.isfinite(value):
-            return '<span class="muted">&mdash;</span>'
-        if value != 0 and abs(value) < 1e-4:
-            shown = f"{value:.2g}"
-        elif abs(value) >= 1000:
-            shown = f"{value:,.0f}"
-        elif abs(value) >= 100:
-            shown = f"{value:.1f}"
-        else:
-            shown = f"{value:.4g}"
-    else:
-        return text(value)
-    return shown + (f'<span class="unit"> {text(unit)}</span>' if unit else "")
+def fmt(value: Any, unit: str = "") -> Markup:
+    """A value as the page's tables show it (the `number` macro), for code that needs it."""
+    return macro("kit.html.j2", "number")(value, unit)
 
 
 def duration(seconds: float) -> str:

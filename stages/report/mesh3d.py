@@ -7,6 +7,8 @@ import re
 import cv2
 import numpy as np
 
+from endopipe.stages.report.kit import render
+
 TISSUE_RGB = (214, 146, 138)
 
 
@@ -137,14 +139,7 @@ def mesh_viewer_page(
     if not page_is_self_contained(page):
         raise RuntimeError("trimesh's viewer page loads scripts from the network")
     # Without WebGL, three.js throws in init(): say so instead of leaving a blank frame.
-    page = page.replace(
-        "init();</script>",
-        "try{init();}catch(e){document.body.innerHTML='<p style=\"font:14px sans-serif;"
-        "color:#6b7684;padding:16px\">3D viewer unavailable: '+e.message+' (needs WebGL). "
-        "The static views below show the mesh.</p>';}</script>",
-        1,
-    )
-    return page
+    return page.replace("init();</script>", str(render("viewer_no_webgl.html.j2")), 1)
 
 
 _NETWORK_LOADS = (

@@ -1,43 +1,23 @@
 """The page: every section rendered in turn into the Jinja2 template (templates/report.html.j2).
 
-A section that fails shows "not available" with the reason; the page is always produced.
+A section that fails, or that read a stage summary which does not validate, shows "not
+available" with the reason and is marked so in the report's summary; the page is always
+produced.
 """
 
 from __future__ import annotations
 
 import datetime as dt
-from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 
-from endopipe.stages.report import sections as sec
+from markupsafe import Markup
+
 from endopipe.stages.report.config import ReportConfig
 from endopipe.stages.report.kit import not_available, one_line, page
-from endopipe.stages.report.load import CaseData, ViewOpener, load_case, stage_view
+from endopipe.stages.report.load import STAGES, CaseData, ViewOpener, load_case, stage_view
+from endopipe.stages.report.sections import SECTIONS, ReportInfo, Section
 
-
-@dataclass
-class ReportInfo:
-    """What the page ended up holding (the stage's summary)."""
-
-    gt_kind: str = "none"
-    mesh_viewer: str = "none"
-    sections: dict[str, bool] = field(default_factory=dict)
-
-
-Section = Callable[[CaseData, ReportInfo], "str | None"]
-
-#: (anchor, title, renderer), in page order.
-SECTIONS: tuple[tuple[str, str, Section], ...] = (
-    ("summary", "Summary", sec.section_summary),
-    ("stages", "Stages: time and memory", sec.section_stages),
-    ("input", "Input frames", sec.section_input),
-    ("poses", "Camera trajectory and centre line", sec.section_poses),
-    ("nerf", "NeRF training", sec.section_nerf),
-    ("depth", "Depth", sec.section_depth),
-    ("mesh", "Mesh", sec.section_mesh),
-    ("runs", "Runs and environment", sec.section_runs),
-)
+__all__ = ["ReportInfo", "build_report", "render_report"]
 
 
 def build_report(
@@ -48,6 +28,27 @@ def build_report(
 ) -> str:
     """The report's HTML for a case whose stage folders are `stage_folders` (name -> folder)."""
     return render_report(case_dir, stage_folders, config or ReportConfig(), open_view)[0]
+
+
+def render_section(data: CaseData, info: ReportInfo, key: str, fn: Section) -> str:
+    """One section's HTML; records in `info.sections` whether it is available. A summary it
+    asked for that did not validate is named at its top: its figures are not shown blank."""
+    data.summaries_read.clear()
+    try:
+        content = fn(data, info)
+    except Exception as e:  # noqa: BLE001 - a broken artefact must not take the page down
+        info.sections[key] = False
+        content = not_available(f"this section failed to render: {one_line(e)}")
+    else:
+        info.sections.setdefault(key, content is not None)
+        if content is None:
+            content = not_available("no artefacts for this section")
+    unreadable = [s for s in STAGES if s in data.summaries_read and s in data.summary_errors]
+    if unreadable:
+        info.sections[key] = False
+        notes = "".join(not_available(data.summary_errors[s]) for s in unreadable)
+        content = Markup(notes) + Markup(content)
+    return str(content)
 
 
 def render_report(
@@ -61,18 +62,10 @@ def render_report(
         info = ReportInfo(gt_kind=data.gt_kind())
     except Exception:  # noqa: BLE001 - an unreadable truth is no truth
         info = ReportInfo()
-    body = []
-    for key, title, fn in SECTIONS:
-        try:
-            content = fn(data, info)
-        except Exception as e:  # noqa: BLE001 - a broken artefact must not take the page down
-            info.sections[key] = False
-            content = not_available(f"this section failed to render: {one_line(e)}")
-        else:
-            info.sections.setdefault(key, content is not None)
-            if content is None:
-                content = not_available("no artefacts for this section")
-        body.append({"key": key, "title": title, "body": content})
+    body = [
+        {"key": key, "title": title, "body": render_section(data, info, key, fn)}
+        for key, title, fn in SECTIONS
+    ]
     name = data.case.name if data.case else data.case_dir.name
     html = page(
         title=cfg.title or f"endopipe report: {name}",

@@ -12,28 +12,25 @@ camera trajectory and the centre line, the poses' verdict (ok / doubtful and why
 frame; a doubtful one also on the summary), the NeRF's loss curves, depth previews with error maps,
 the metric tables (depth under both protocols, mesh, poses, PSNR / SSIM) and the recent runs.
 Any missing artefact (no ground truth, no mesh metrics, a stage folder absent) is shown as
-"not available" with the reason; a section never takes the page down.
+"not available" with the reason; a section never takes the page down. A stage summary that
+does not match its stage's model (a folder written by another version) is named, with the
+`--from` to re-run, at the top of each section that reads it, and that section counts as not
+available: a renamed field never shows as a blank value.
 
-Modules: load.py (the stages' views, manifests, run records), sections.py (each section's
-content), pose_verdict.py (the poses' verdict block), figures.py (plots), mesh3d.py (the mesh
-on the page), kit.py + templates/ (HTML), render.py (the page).
+Modules: load.py (the stages' views, typed summaries, manifests, run records), sections/ (one
+module per section, with its template in templates/sections/), figures.py (plots), mesh3d.py
+(the mesh on the page), kit.py + templates/ (all the HTML), render.py (the page).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from endopipe.pipeline.stage import Stage, StageContext, Summary
+from endopipe.pipeline.stage import Stage, StageContext
 from endopipe.stages.report.config import ReportConfig
 from endopipe.stages.report.render import render_report
+from endopipe.stages.report.summary import ReportSummary
 from endopipe.stages.report.view import PAGE, ReportView
-
-
-class ReportSummary(Summary):
-    size_mb: float
-    gt_kind: str
-    mesh_viewer: str
-    sections: dict[str, bool]
 
 
 class Report(Stage):

@@ -1,0 +1,82 @@
+"""Depth: the accuracy under each protocol, ours against two guesses, the held-out image
+quality, how the maps were rendered, previews and the preview video."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from endopipe.stages.report.figures import plot_per_frame
+from endopipe.stages.report.images import video_uri
+from endopipe.stages.report.kit import not_available, render
+from endopipe.stages.report.load import CaseData
+from endopipe.stages.report.sections.common import ReportInfo, heldout_image_scores
+from endopipe.stages.report.sections.guesses import comparison
+from endopipe.stages.report.sections.previews import depth_previews
+from endopipe.stages.report.sections.scores import per_frame_series, score_table
+
+if TYPE_CHECKING:
+    from endopipe.stages.depth.summary import DepthSummary
+
+RENDERERS = {
+    "baked": "the surface baked from the field once, then ray cast",
+    "field": "the field itself, ray marched",
+}
+
+
+def unknown_depth(s: DepthSummary) -> str | None:
+    """The share of the lens's pixels without a depth, and why (None when not measured)."""
+    unknown, hazy = s.unknown_share, s.hazy_share
+    if unknown is None:
+        return None
+    why = "their rays found no surface"
+    if hazy:
+        why = f"{100 * hazy:.1f}% spread over no one surface, depth.max_spread"
+        if unknown - hazy > 5e-4:
+            why += "; the rest found none"
+    return f"{100 * unknown:.1f}% of the lens's pixels ({why})"
+
+
+def renderer(s: DepthSummary) -> str:
+    """The renderer's name, and what it does when the report knows it."""
+    return f"{s.renderer}: {RENDERERS[s.renderer]}" if s.renderer in RENDERERS else s.renderer
+
+
+def section_depth(data: CaseData, info: ReportInfo) -> str | None:
+    if data.depth is None:
+        if "depth" in data.view_errors:
+            return not_available(f"05_depth unreadable: {data.view_errors['depth']}")
+        return None
+    dm, s, cfg = data.depth_metrics, data.depth_summary, data.cfg
+    psnr, ssim = heldout_image_scores(data)
+    table = per_frame = None
+    if dm is not None:
+        table = score_table(dm.median_scaled, dm.sequence_scaled, dm.affine_invariant, data.units)
+        series = per_frame_series(dm.per_frame)
+        per_frame = plot_per_frame(series) if series else None
+    no_metrics = (
+        "no ground truth to evaluate against"
+        if info.gt_kind == "none"
+        else "05_depth/metrics.json is missing"
+    )
+    preview = data.depth.preview_path
+    video_mb = preview.stat().st_size / 2**20 if preview.is_file() else None
+    show_video = video_mb is not None and cfg.include_video
+    return render(
+        "sections/depth.html.j2",
+        dm=dm,
+        table=table,
+        comparison=comparison(dm) if dm is not None else None,
+        psnr=psnr,
+        ssim=ssim,
+        per_frame=per_frame,
+        no_metrics=no_metrics,
+        s=s,
+        renderer=renderer(s) if s is not None else "",
+        unknown=unknown_depth(s) if s is not None else None,
+        previews=depth_previews(data),
+        show_video=show_video,
+        video_src=video_uri(preview) if show_video and video_mb <= cfg.max_video_mb else None,
+        video_mb=video_mb,
+        max_video_mb=cfg.max_video_mb,
+        preview_path=str(preview),
+    )

@@ -1,0 +1,38 @@
+"""NeRF training: the loss curves, the held-out renderings, the run's figures and the rendered
+depth of the held-out frames."""
+
+from __future__ import annotations
+
+from endopipe.stages.report.images import file_image_uri
+from endopipe.stages.report.kit import render
+from endopipe.stages.report.load import CaseData
+from endopipe.stages.report.sections.common import ReportInfo
+from endopipe.stages.report.sections.scores import score_table
+
+
+def section_nerf(data: CaseData, info: ReportInfo) -> str | None:
+    nerf, s = data.nerf, data.nerf_summary
+    loss = held = None
+    if nerf is not None:
+        loss = file_image_uri(nerf.loss_plot_path, 1100)
+        held = file_image_uri(nerf.heldout_plot_path, 1100, "jpg", data.cfg.jpeg_quality)
+    if loss is None and held is None and s is None:
+        return None
+    nm = data.nerf_metrics or {}
+    # metrics.json's PSNR first (it has the key even when it is null), then the summary's
+    summary_psnr = s.heldout_psnr if s is not None else None
+    psnr = nm["psnr"] if "psnr" in nm else summary_psnr
+    show_psnr = nm.get("psnr") is not None or summary_psnr is not None
+    depth = s.depth if s is not None else None
+    return render(
+        "sections/nerf.html.j2",
+        loss=loss,
+        held=held,
+        s=s,
+        render_rgb_ms=nm.get("render_rgb_ms"),
+        psnr=psnr if show_psnr else None,
+        show_psnr=show_psnr,
+        depth=score_table(depth.median_scaled, depth.sequence_scaled, units=data.units)
+        if depth is not None
+        else None,
+    )
