@@ -32,10 +32,9 @@ from endopipe.stages.io.colmap_model import (
     camera_from_colmap,
     camera_to_colmap,
     read_colmap_model,
-    read_transforms_json,
     write_text_model,
-    write_transforms_json,
 )
+from endopipe.stages.io.transforms_json import read_transforms_json, write_transforms_json
 from endopipe.stages.metrics.depth import (
     ate_rmse,
     path_length,
