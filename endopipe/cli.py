@@ -1,6 +1,8 @@
 """The composition root: wires the stages into the DAG and exposes the commands.
 
-Every failure the user can act on ends as one line on stderr and a non-zero exit code.
+Each command here declares its options and calls its body in endopipe.commands with the
+pipeline it needs. Every failure the user can act on ends as one line on stderr and a non-zero
+exit code.
 """
 
 from __future__ import annotations
@@ -8,28 +10,37 @@ from __future__ import annotations
 import importlib
 import shlex
 import sys
-import time
 import traceback
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.console import Console
 from rich.markup import escape
-from rich.table import Table
-from rich.text import Text
 
+from endopipe.commands.cases import prepare_case, resolve_case
+from endopipe.commands.terminal import console, out
 from endopipe.pipeline.errors import EndopipeError
 
-# The engine (pydantic, yaml) and the stages (torch, cv2) are imported by the commands that use
-# them: `endopipe --help` and `status` start in a fraction of a second.
+# The engine (pydantic, yaml), the stages (torch, cv2) and the command bodies are imported by
+# the commands that use them: `endopipe --help` and `status` start in a fraction of a second.
 if TYPE_CHECKING:
     from endopipe.commands.batch.rows import CaseRow, CaseTask
-    from endopipe.pipeline.runner import Pipeline, RunRecord
+    from endopipe.pipeline.runner import Pipeline
     from endopipe.pipeline.stage import Stage
 
-console = Console(stderr=True)
-out = Console()
+#: What tests and scripts import from here (prepare_case and the consoles live in commands/).
+__all__ = [
+    "all_stages",
+    "app",
+    "batch_case",
+    "build_pipeline",
+    "console",
+    "main",
+    "out",
+    "planning_pipeline",
+    "prepare_case",
+]
+
 app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
@@ -62,6 +73,7 @@ def all_stages() -> list[type[Stage]]:
 
 
 def build_pipeline() -> Pipeline:
+    """The DAG with its stages imported: for commands that run stages."""
     from endopipe.pipeline.runner import Pipeline
 
     return Pipeline(all_stages())
@@ -76,68 +88,9 @@ def planning_pipeline() -> Pipeline:
     return Pipeline([declared(module, cls) for module, cls in DAG])
 
 
-def case_name_for(input_path: Path) -> str:
-    p = input_path.resolve()
-    if p.is_file() and p.name == "video.mp4" and (p.parent / "intrinsics.json").exists():
-        return p.parent.name
-    if p.is_dir() and p.name == "frames":
-        return p.parent.name
-    return p.stem if p.is_file() else p.name
-
-
-def prepare_case(
-    input_path: Path,
-    workdir: Path,
-    name: str | None,
-    intrinsics: Path | None,
-    input_format: str | None = None,
-) -> Path:
-    """Check the input, then create the case folder and its case.json (only then)."""
-    from endopipe.pipeline.runner import ensure_writable
-    from endopipe.pipeline.stage import CaseInfo, write_json
-    from endopipe.stages.io.sources import open_input
-
-    source = open_input(input_path, intrinsics, format=input_format)
-    digest = source.digest()
-    ensure_writable(workdir)
-    case_dir = workdir / (name or case_name_for(input_path))
-    case_dir.mkdir(parents=True, exist_ok=True)
-    info = CaseInfo(
-        name=case_dir.name,
-        input=str(Path(input_path).resolve()),
-        kind=source.kind,
-        input_digest=digest,
-        intrinsics_file=str(intrinsics.resolve()) if intrinsics else None,
-        gt_dir=str(source.gt_dir) if source.gt_dir else None,
-    )
-    case_json = case_dir / "case.json"
-    if not case_json.exists() or CaseInfo.load(case_dir) != info:
-        tmp = case_dir / ".case.json.tmp"
-        write_json(tmp, info.model_dump())
-        tmp.replace(case_json)
-    return case_dir
-
-
-def resolve_case(case: str, workdir: Path) -> Path:
-    for candidate in (Path(case), workdir / case):
-        if (candidate / "case.json").is_file():
-            return candidate
-    raise EndopipeError(
-        f"no endopipe case at {case} (nor {workdir / case}); run `endopipe run INPUT` first"
-    )
-
-
-def print_record(record: RunRecord, case_dir: Path) -> None:
-    ran = [s.stage for s in record.stages if s.status == "ran"]
-    cached = [s.stage for s in record.stages if s.status == "cached"]
-    console.print(
-        f"[bold]{record.case}[/bold]: ran {len(ran)} stage(s), {len(cached)} cached, "
-        f"{record.wall_s:.1f} s -> {case_dir}"
-    )
-
-
 @app.command()
 def run(
+    ctx: typer.Context,
     input: Annotated[
         Path, typer.Argument(help="Video file, image folder or endopipe case folder.")
     ],
@@ -158,53 +111,30 @@ def run(
     quiet: Annotated[bool, typer.Option(help="No progress output.")] = False,
 ) -> None:
     """Run the pipeline on INPUT: what is stale runs, what is fresh is reused."""
-    from endopipe.pipeline.config import load_config
+    from endopipe.commands.run import run_case
 
-    pipe = build_pipeline()
-    for stage in (from_stage, until):
-        if stage is not None:
-            pipe.index(stage)
-    configs = load_config(pipe.stages, config or [], set_ or [])
-    case_dir = prepare_case(input, workdir, name, intrinsics)
-    record = pipe.run(
-        case_dir,
-        configs,
-        until=until,
+    run_case(
+        build_pipeline(),
+        input,
+        workdir=workdir,
+        workdir_given=_given(ctx, "workdir"),
+        name=name,
+        config_files=config or [],
+        sets=set_ or [],
+        intrinsics=intrinsics,
         from_stage=from_stage,
+        until=until,
         force=force,
         dry_run=dry_run,
-        wait_for_lock=wait,
-        console=console,
+        wait=wait,
         quiet=quiet,
     )
-    if dry_run:
-        for s in record.stages:
-            out.print(
-                f"{s.stage:<12} {'cached' if s.status == 'cached' else 'would run'}  ({s.reason})"
-            )
-        return
-    print_record(record, case_dir)
-    print_pose_doubt(pipe, case_dir)
 
 
-def print_pose_doubt(pipe, case_dir: Path) -> None:
-    """Doubtful poses as the run's last line: everything after the poses inherits them, and
-    the stage log that said so has scrolled away."""
-    try:
-        verdict = pipe.view(case_dir, "poses").verdict()
-    except (OSError, ValueError):  # no poses folder (yet), or one written by an older version
-        return
-    if verdict is not None and verdict.status == "doubtful":
-        others = "".join(
-            f"; the {m} mapper's poses were sound on their own (`--set poses.mapper={m}` "
-            "keeps them)"
-            for m in verdict.sound_others()
-        )
-        console.print(
-            f"[bold yellow]poses doubtful:[/bold yellow] {escape('; '.join(verdict.reasons))} "
-            f"(02_poses/verdict.json; the report's poses section names the frames){escape(others)}",
-            soft_wrap=True,
-        )
+def _given(ctx: typer.Context, param: str) -> bool:
+    """Whether the user typed the option, rather than leaving it at its default."""
+    source = ctx.get_parameter_source(param)
+    return source is not None and source.name not in ("DEFAULT", "DEFAULT_MAP")
 
 
 @app.command()
@@ -216,33 +146,9 @@ def status(
 ) -> None:
     """Each stage of CASE: fresh, stale (and why), missing or running. Judged against the
     configuration CASE was last run with; with --config/--set: would that config re-run?"""
-    from endopipe.pipeline.config import load_config
+    from endopipe.commands.status import show_status
 
-    pipe = planning_pipeline()
-    case_dir = resolve_case(case, workdir)
-    given = bool(config or set_)
-    configs = load_config(pipe.stages, config or [], set_ or []) if given else None
-    plan = pipe.status(case_dir, configs)
-    running = pipe.in_progress(case_dir)
-    against = "the given --config/--set" if given else "the configuration of its last run"
-    table = Table(title=f"{case_dir.name}", caption=f"judged against {against}")
-    for col in ("stage", "state", "why", "folder"):
-        table.add_column(col)
-    for p in plan:
-        state = "fresh" if p.fresh else ("missing" if p.reason == "missing" else "stale")
-        why = p.reason
-        if running is not None and running.running == p.stage:
-            since = running.started.split("T")[-1]
-            state, why = "running", f"pid {running.pid} on {running.host}, run started {since}"
-        colour = {"fresh": "green", "stale": "yellow", "missing": "red", "running": "cyan"}[state]
-        table.add_row(p.stage, f"[{colour}]{state}[/{colour}]", escape(why), p.folder)
-    out.print(table)
-    if running is not None:
-        out.print(
-            f"a run is in progress (pid {running.pid} on {running.host}): {running.running} is "
-            "running; stages after it are judged by what is on disk now",
-            highlight=False,
-        )
+    show_status(planning_pipeline(), case, workdir, config or [], set_ or [])
 
 
 @app.command()
@@ -254,12 +160,9 @@ def clean(
     ] = None,
 ) -> None:
     """Remove a case's stage outputs (all, or one stage and what depends on it)."""
-    pipe = planning_pipeline()
-    case_dir = resolve_case(case, workdir)
-    if stage is not None:
-        pipe.index(stage)
-    removed = pipe.clean(case_dir, stage)
-    out.print(f"removed {len(removed)} folder(s): {', '.join(removed) or 'none'}")
+    from endopipe.commands.clean import clean_case
+
+    clean_case(planning_pipeline(), case, workdir, stage)
 
 
 @app.command()
@@ -300,26 +203,9 @@ def list_stages(
     yaml_: Annotated[bool, typer.Option("--yaml", help="Print configs/default.yaml.")] = False,
 ) -> None:
     """Every stage with its config fields, types, defaults and help."""
-    from endopipe.pipeline.config import default_yaml, describe_fields
+    from endopipe.commands.stages_list import print_stages
 
-    pipe = planning_pipeline()
-    if yaml_:
-        out.print(default_yaml(pipe.stages), markup=False, highlight=False, soft_wrap=True)
-        return
-    for stage in pipe.stages:
-        needs = ", ".join(stage.needs) or "input"
-        out.print(f"[bold]{pipe.folder_name(stage.name)}[/bold]  needs: {needs}  v{stage.version}")
-        out.print(f"  {stage.describe()}", markup=False, highlight=False, soft_wrap=True)
-        # one line per key (grep-able, never truncated: `endopipe stages | grep steps`),
-        # its help below; the default is written as --set and config files take it
-        for key, type_name, default, help_text in describe_fields(stage.Config):
-            line = Text("  ")
-            line.append(f"{stage.name}.{key}", style="bold")
-            line.append(f" = {default}  [{type_name}]")
-            out.print(line, highlight=False, soft_wrap=True)
-            if help_text:
-                out.print(f"      {help_text}", markup=False, highlight=False, soft_wrap=True)
-        out.print()
+    print_stages(planning_pipeline(), yaml_)
 
 
 @app.command()
@@ -345,41 +231,19 @@ def synth(
     ] = 0.0,
 ) -> None:
     """Write a synthetic lumen case with exact ground truth (depth, poses, mesh, speculars)."""
-    from pydantic import ValidationError
+    from endopipe.commands.synth_command import synth_case
 
-    from endopipe.commands.synth import SynthConfig
-    from endopipe.pipeline.runner import ensure_writable
-
-    try:
-        cfg = SynthConfig(
-            seed=seed,
-            frames=frames,
-            width=width,
-            height=height,
-            shape=shape,
-            lens=lens,
-            fov_diag_deg=fov_diag,
-            vignetting=vignetting,
-        )
-    except ValidationError as e:
-        err = e.errors()[0]
-        raise EndopipeError(f"synth {'.'.join(map(str, err['loc']))}: {err['msg']}") from None
-    ensure_writable(out_dir.parent if out_dir.parent != Path("") else Path("."))
-    summary = write_synth(out_dir, cfg)
-    out.print(
-        f"wrote {summary.frames} frames ({shape}, path {summary.path_length_mm:.1f} mm, "
-        f"mean radius {summary.mean_radius_mm:.1f} mm) to {out_dir} in {summary.seconds:.1f} s"
+    synth_case(
+        out_dir,
+        seed=seed,
+        frames=frames,
+        width=width,
+        height=height,
+        shape=shape,
+        lens=lens,
+        fov_diag=fov_diag,
+        vignetting=vignetting,
     )
-
-
-def write_synth(out_dir: Path, cfg) -> object:
-    from rich.progress import Progress
-
-    from endopipe.commands.synth import generate_case
-
-    with Progress(console=console, transient=True) as bar:
-        task = bar.add_task("synth", total=cfg.frames)
-        return generate_case(out_dir, cfg, progress=lambda i, n: bar.update(task, completed=i + 1))
 
 
 @app.command()
@@ -388,25 +252,9 @@ def demo(
     frames: int = 24,
 ) -> None:
     """Synthesise a small colon case and run every stage on it."""
-    from endopipe.commands.synth import SynthConfig
-    from endopipe.pipeline.config import load_config
-    from endopipe.pipeline.runner import ensure_writable
+    from endopipe.commands.demo import run_demo
 
-    ensure_writable(workdir)
-    case_src = workdir / "demo_input"
-    cfg = SynthConfig(seed=0, frames=frames, width=320, height=256, shape="colon")
-    t0 = time.perf_counter()
-    if not (case_src / "intrinsics.json").exists():
-        console.print(f"[bold]synthesising[/bold] a {frames}-frame colon into {case_src}")
-        write_synth(case_src, cfg)
-    pipe = build_pipeline()
-    configs = load_config(pipe.stages, ["demo"] if _has_preset("demo") else [], [])
-    case_dir = prepare_case(case_src, workdir, "demo", None)
-    record = pipe.run(case_dir, configs, console=console)
-    print_record(record, case_dir)
-    out.print(f"demo finished in {time.perf_counter() - t0:.1f} s; outputs:")
-    for stage in pipe.stages:
-        out.print(f"  {stage.name:<11} {case_dir / pipe.folder_name(stage.name)}")
+    run_demo(build_pipeline, workdir, frames)
 
 
 @app.command()
@@ -434,36 +282,17 @@ def bench(
     ] = None,
 ) -> None:
     """The paper's Table 1 on fixed-seed synthetic cases with ablations; CSV and markdown."""
-    from endopipe.commands import bench as b
-    from endopipe.pipeline.config import load_config
-    from endopipe.pipeline.runner import ensure_writable
+    from endopipe.commands.bench_command import run_bench_command
 
-    ensure_writable(workdir)
-    pipe = build_pipeline()
-    load_config(pipe.stages, [], set_ or [])  # validate extra settings before hours of work
-    bench_plan = b.plan(quick, case, variant, sweep)
-    name, write_csv, table_of, collect = "bench", b.write_csv, b.markdown_table, None
-    if sweep is not None:
-        name, write_csv, table_of, collect = sweep, b.write_pose_csv, b.pose_table, b.pose_row
-
-    def save(rows: list[dict]) -> None:  # after every run: a crash keeps the finished rows
-        write_csv(workdir / f"{name}.csv", rows)
-        (workdir / f"{name}.md").write_text(table_of(rows) + "\n")
-
-    t0 = time.perf_counter()
-    rows = b.run_bench(pipe, workdir, bench_plan, prepare_case, console, set_ or [], save, collect)
-    save(rows)
-    out.print(table_of(rows), markup=False, highlight=False, soft_wrap=True)
-    out.print(
-        f"bench finished in {time.perf_counter() - t0:.0f} s; "
-        f"{workdir / f'{name}.csv'}, {workdir / f'{name}.md'}"
+    run_bench_command(
+        build_pipeline,
+        workdir,
+        quick=quick,
+        sets=set_ or [],
+        cases=case,
+        variants=variant,
+        sweep=sweep,
     )
-
-
-def _has_preset(name: str) -> bool:
-    from endopipe.pipeline.config import CONFIG_DIR
-
-    return (CONFIG_DIR / f"{name}.yaml").is_file()
 
 
 # ---------------------------------------------------------------- endopipe batch

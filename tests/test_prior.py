@@ -1,4 +1,5 @@
-"""stages/prior.py on analytic shapes: tube distance, core, ray bounds, ellipsoid, npz."""
+"""The lumen priors (stages/centerline/prior/) on analytic shapes: tube distance, core, ray
+bounds, ellipsoid, npz."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Which lumen prior the evidence supports: tube, cavity or none (`prior: auto`).
 
 Why: a prior that does not fit the scene caps the rays short of the surface and pulls density
-to a wall that is not there (issue 14: on C3VD the tube's radius came from the 10% of the SfM
+to a wall that is not there (on C3VD the tube's radius came from the 10% of the SfM
 points near the short camera path, and the rendered depth at the points was 0.54-0.63 of
 theirs). Each candidate is judged on ALL the SfM observations: the share of camera-to-point
 rays whose exit through its wall lies within `fit_tolerance` of the point. The best candidate

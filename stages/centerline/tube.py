@@ -2,7 +2,7 @@
 
 Seed §3.3: the anatomical prior is "a generalized tube model that follows the approximate path of
 the camera". This stage estimates it once, so the NeRF stage can use it as a signed-distance
-proxy (prior.py):
+proxy (prior/):
 
 1. A smoothing spline through the registered camera centres (smoothing scaled to the wobble of
    the path about a local-linear fit one radius wide), extended a little ahead of the cameras

@@ -1,0 +1,54 @@
+"""`endopipe bench`: the paper's table (or a poses sweep) on fixed-seed synthetic cases, saved
+after every case so a crash keeps the finished rows. The cases, variants and tables are the
+bench module's; this module only drives them and reports."""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+from endopipe.commands.cases import prepare_case
+from endopipe.commands.terminal import console, out
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from pathlib import Path
+
+    from endopipe.pipeline.runner import Pipeline
+
+
+def run_bench_command(
+    build_pipeline: Callable[[], Pipeline],
+    workdir: Path,
+    *,
+    quick: bool,
+    sets: list[str],
+    cases: list[str] | None,
+    variants: list[str] | None,
+    sweep: str | None,
+) -> None:
+    """Plan, run and tabulate; the extra settings are checked before hours of work."""
+    from endopipe.commands import bench as b
+    from endopipe.pipeline.config import load_config
+    from endopipe.pipeline.runner import ensure_writable
+
+    ensure_writable(workdir)
+    pipe = build_pipeline()
+    load_config(pipe.stages, [], sets)  # validate extra settings before hours of work
+    bench_plan = b.plan(quick, cases, variants, sweep)
+    name, write_csv, table_of, collect = "bench", b.write_csv, b.markdown_table, None
+    if sweep is not None:
+        name, write_csv, table_of, collect = sweep, b.write_pose_csv, b.pose_table, b.pose_row
+
+    def save(rows: list[dict]) -> None:  # after every run: a crash keeps the finished rows
+        write_csv(workdir / f"{name}.csv", rows)
+        (workdir / f"{name}.md").write_text(table_of(rows) + "\n")
+
+    t0 = time.perf_counter()
+    rows = b.run_bench(pipe, workdir, bench_plan, prepare_case, console, sets, save, collect)
+    save(rows)
+    out.print(table_of(rows), markup=False, highlight=False, soft_wrap=True)
+    out.print(
+        f"bench finished in {time.perf_counter() - t0:.0f} s; "
+        f"{workdir / f'{name}.csv'}, {workdir / f'{name}.md'}"
+    )
