@@ -117,7 +117,7 @@ def test_view_maps_an_image_folders_own_names(tmp_path: Path) -> None:
     assert view.index_by_source_stem() == {f"shot_{10 + 3 * n:04d}": n for n in range(5)}
 
 
-# ----------------------------------------------- max_frames stops decoding (issue 15, item 8)
+# ----------------------------------------------- max_frames stops decoding
 
 
 def ingest_summary(workdir: Path, name: str) -> dict:
@@ -145,7 +145,7 @@ def test_max_frames_stops_decoding_and_counts_what_was_not_read(tmp_path: Path, 
     assert [f["source_index"] for f in frames] == list(range(0, 40, 2))
 
 
-# ------------------------------- ground truth that does not match the input (issue 15, item 4)
+# ------------------------------- ground truth that does not match the input
 
 
 @pytest.fixture(scope="module")

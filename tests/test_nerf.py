@@ -1,14 +1,12 @@
 """nerf stage: encodings, sampling, training, checkpoint resume, rendering, metrics.
 
-The fast tests use a tiny analytic scene (a straight textured tube closed by an end wall, lit by
-a light at the camera, 40 x 32 pixels) so they need neither the synth generator nor COLMAP.
-The accuracy run on a synthetic 60-frame colon is marked slow.
+The fast tests use the tiny analytic tube of tests/tube_scene.py; the accuracy run on a
+synthetic 60-frame colon is marked slow. The photometric model is in test_nerf_shading.py.
 """
 
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import cv2
@@ -16,115 +14,32 @@ import numpy as np
 import pytest
 import torch
 
-from endopipe.stages.camera import Camera, look_at, pixel_rays
-from endopipe.stages.centerline.prior import TubePrior
+from endopipe.stages.camera import Camera, pixel_rays
 from endopipe.stages.metrics.depth import depth_errors, depth_frame_metrics, depth_sequence_metrics
 from endopipe.stages.nerf.config import NerfConfig
-from endopipe.stages.nerf.data import FrameSet, holdout_split
+from endopipe.stages.nerf.data import holdout_split
 from endopipe.stages.nerf.encodings import HashGrid, VMGrid
 from endopipe.stages.nerf.field import make_field
-from endopipe.stages.nerf.model import NEW_KEYS, NerfModel
 from endopipe.stages.nerf.render import density_grid, load_model, render_image, save_model
 from endopipe.stages.nerf.sampling import composite, sample_pdf, spaced
 from endopipe.stages.nerf.scene import SceneBox
 from endopipe.stages.nerf.stage import fit_box, regularise_far_view
 from endopipe.stages.nerf.train import Trainer
+from tests.tube_scene import (  # noqa: F401 - one_torch_thread is a fixture
+    END_Z,
+    RADIUS,
+    H,
+    W,
+    intrinsics,
+    one_torch_thread,
+    tiny_config,
+    tiny_setup,
+    tube_frame,
+    tube_poses,
+    tube_prior,
+)
 
-RADIUS = 10.0
-END_Z = 60.0
-W, H = 40, 32
-
-
-def tube_frame(k: Camera, c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Exact render of the tube x^2 + y^2 = R^2 closed at z = END_Z: sRGB image, z-depth."""
-    u, v = np.meshgrid(np.arange(k.width, dtype=float), np.arange(k.height, dtype=float))
-    dc = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], -1)
-    d = dc @ c2w[:3, :3].T
-    o = c2w[:3, 3]
-    a = d[..., 0] ** 2 + d[..., 1] ** 2
-    b = 2 * (o[0] * d[..., 0] + o[1] * d[..., 1])
-    c = o[0] ** 2 + o[1] ** 2 - RADIUS**2
-    t_cyl = (-b + np.sqrt(np.maximum(b * b - 4 * a * c, 0))) / np.maximum(2 * a, 1e-12)
-    t_cyl = np.where(a > 1e-12, t_cyl, np.inf)
-    t_end = np.where(d[..., 2] > 1e-9, (END_Z - o[2]) / np.maximum(d[..., 2], 1e-9), np.inf)
-    t = np.minimum(t_cyl, t_end)
-    p = o + t[..., None] * d
-    normal = np.where(
-        (t_cyl < t_end)[..., None],
-        -np.stack([p[..., 0], p[..., 1], np.zeros_like(t)], -1) / RADIUS,
-        np.array([0.0, 0.0, -1.0]),
-    )
-    theta = np.arctan2(p[..., 1], p[..., 0])
-    albedo = 0.55 + 0.3 * np.sin(5 * theta)[..., None] * np.sin(0.7 * p[..., 2])[..., None] * [
-        1.0,
-        0.6,
-        0.5,
-    ]
-    albedo = albedo + 0.15 * np.sin(0.5 * p[..., 0] + 0.3 * p[..., 2])[..., None]
-    r = t * np.linalg.norm(d, axis=-1)
-    cos = np.clip(-(normal * d).sum(-1) / np.linalg.norm(d, axis=-1), 0, 1)
-    lin = np.clip(albedo * (60.0 * cos / r**2 + 0.02)[..., None], 0, 1)
-    rgb = (lin ** (1 / 2.2) * 255).round().astype(np.uint8)
-    depth = (t * dc[..., 2]).astype(np.float32)  # dc z = 1: t is the z-depth
-    return rgb, depth
-
-
-def tube_poses(n: int) -> list[np.ndarray]:
-    poses = []
-    for i in range(n):
-        z = 2.0 + 1.2 * i
-        eye = np.array([0.8 * np.sin(0.4 * i), 0.6 * np.cos(0.3 * i), z])
-        poses.append(look_at(eye, np.array([0.0, 0.0, z + 30.0]), np.array([0.0, -1.0, 0.0])))
-    return poses
-
-
-def intrinsics() -> Camera:
-    f = 0.5 * W / np.tan(np.radians(45))
-    return Camera(width=W, height=H, fx=f, fy=f, cx=(W - 1) / 2, cy=(H - 1) / 2)
-
-
-def tube_prior() -> TubePrior:
-    z = np.linspace(-5.0, END_Z + 5, 30)
-    return TubePrior(np.stack([np.zeros_like(z), np.zeros_like(z), z], 1), RADIUS)
-
-
-def tiny_config(**train) -> NerfConfig:
-    cfg = NerfConfig()
-    cfg.field.tensorf.res_init = 24
-    cfg.field.tensorf.res_final = 40
-    cfg.sampling.n_coarse = 32
-    cfg.sampling.n_fine = 16
-    cfg.sampling.n_uniform = 4
-    cfg.train.batch_rays = 256
-    cfg.train.steps = 80
-    cfg.train.checkpoint_every = 20
-    cfg.train.time_budget_s = None  # step-based: deterministic, so resume can match exactly
-    for k, v in train.items():
-        setattr(cfg.train, k, v)
-    return cfg
-
-
-def tiny_setup(cfg: NerfConfig, n_frames: int = 10):
-    k = intrinsics()
-    poses = tube_poses(n_frames)
-    renders = [tube_frame(k, p) for p in poses]
-    images = np.stack([r[0] for r in renders]).astype(np.float32) / 255.0
-    masks = np.ones(images.shape[:3], bool)
-    prior = tube_prior()
-    box = fit_box(poses, k, (H, W), prior, cfg)
-    c2w_s = np.stack([box.c2w_to_scene(p) for p in poses])
-    ids = list(range(n_frames))
-    frames = FrameSet(images, masks, c2w_s, k, ids, torch.device("cpu"))
-    train, held = holdout_split(ids, cfg.train.holdout_every)
-    return frames, train, held, prior, box, k, poses, [r[1] for r in renders]
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 # --- pieces -------------------------------------------------------------------------------------
@@ -260,7 +175,7 @@ def test_training_lowers_the_loss_and_renders_z_depth(tmp_path):
 
 def test_photo_weight_scales_l_photo_alone(tmp_path):
     """nerf.loss.photo_weight multiplies L_photo and nothing else: from one seed the first step
-    sees the same batch, so the loss differs by exactly (w - 1) x L_photo (README, stop 29)."""
+    sees the same batch, so the loss differs by exactly (w - 1) x L_photo."""
     rows = []
     for w in (1.0, 3.0):
         cfg = tiny_config(steps=1)
@@ -360,163 +275,6 @@ def test_paper_preset_trains_with_coarse_and_fine_passes(tmp_path):
     assert tr.step_i == 3 and np.isfinite(tr.rows[-1]["loss"])
     out = render_image(tr.model.eval(), prior, k, poses[0], colour=True)
     assert out["depth"].shape == (H, W) and np.isfinite(out["rgb"]).all()
-
-
-# --- the scope's photometric model --------------------------------------------------------------
-
-
-def photometric_config(**shading) -> NerfConfig:
-    cfg = tiny_config()
-    for k, v in shading.items():
-        setattr(cfg.shading, k, v)
-    return cfg
-
-
-def flat_wall(cfg: NerfConfig, z: float = 1.0):
-    """A distorted wide-angle camera (up to 68 degrees off its axis) at a random rotation
-    facing a flat wall, at z-depth `z` in frame 0 and z + 0.5 f in frame f (the distance
-    tells the 1/r^2 light from the ambient): rays, the exact surface (depth, normal), a
-    textured albedo, the frame of each ray (1..5; frame 0 is held out), the truth of
-    cos theta."""
-    from endopipe.stages.camera import pixel_directions
-
-    k = Camera(
-        width=64,
-        height=48,
-        fx=20.0,
-        fy=20.0,
-        cx=31.5,
-        cy=23.5,
-        model="opencv",
-        dist=[-0.1, 0.01, 0.0, 0.0],
-    )
-    vv, uu = torch.meshgrid(torch.arange(48.0), torch.arange(64.0), indexing="ij")
-    dc = pixel_directions(k, uu.reshape(-1), vv.reshape(-1))  # lens undone, z = 1
-    rot = torch.as_tensor(
-        cv2.Rodrigues(np.array([0.4, -0.7, 1.1]))[0], dtype=torch.float32
-    )  # poses only rotate directions
-    d = dc @ rot.T
-    g = torch.Generator().manual_seed(0)
-    albedo = 0.25 + 0.5 * torch.rand(len(d), 3, generator=g)
-    frame = torch.randint(1, 6, (len(d),), generator=g)
-    surface = {
-        "depth": z + 0.5 * frame.float(),
-        "normal": (rot @ torch.tensor([0.0, 0.0, -1.0])).expand_as(d),
-    }
-    cos_truth = dc[:, 2] / dc.norm(dim=-1)
-    model = NerfModel(cfg, SceneBox(np.zeros(3), np.eye(3), 1.0, -np.ones(3), np.ones(3)), 6)
-    model.set_trained_frames([1, 2, 3, 4, 5])
-    with torch.no_grad():
-        model.log_gain.fill_(math.log(4 * z * z))  # on the axis in frame 2: gain / r^2 = 1
-    return model, d, surface, albedo, frame, cos_truth
-
-
-def shade(model, d, surface, albedo, frame) -> torch.Tensor:
-    return model.shade(surface, albedo, d, d.norm(dim=-1), frame, 1.0)
-
-
-def fit_shading(model, d, surface, albedo, frame, target, steps: int = 3000) -> None:
-    """Fit only what the model's optimiser groups call shading and photometric (field frozen)."""
-    groups = [g for g in model.param_groups(0.02, 1e-3) if g["name"] in ("shading", "photometric")]
-    opt = torch.optim.Adam([p for g in groups for p in g["params"]], lr=0.03)
-    sched = torch.optim.lr_scheduler.ExponentialLR(opt, 0.01 ** (1 / steps))
-    for _ in range(steps):
-        opt.zero_grad()
-        (shade(model, d, surface, albedo, frame) - target).square().mean().backward()
-        opt.step()
-        sched.step()
-
-
-def test_radial_falloff_is_flat_at_start_and_old_checkpoints_render_unchanged(tmp_path):
-    cfg = photometric_config(falloff="learned", learn_gamma=True, exposure=True)
-    model, d, surface, albedo, frame, _ = flat_wall(cfg)
-    seed_model = flat_wall(photometric_config())[0]
-    assert torch.equal(model.radial_falloff(torch.rand(50)), torch.ones(50))
-    new, old = shade(model, d, surface, albedo, frame), shade(seed_model, d, surface, albedo, frame)
-    assert torch.allclose(new, old, rtol=1e-6, atol=1e-7)
-
-    # A model.pt written before the photometric model (no such keys in its config or state),
-    # opened now that they may be on by default: it loads and renders as before.
-    frames, train, held, prior, box, k, poses, _ = tiny_setup(tiny_config(), n_frames=4)
-    before = NerfModel(tiny_config(), box, frames.n, gain=50.0).eval()
-    save_model(tmp_path / "model.pt", before)
-    blob = torch.load(tmp_path / "model.pt", weights_only=False)
-    for key in ("falloff", "learn_gamma", "lr"):
-        del blob["config"]["shading"][key]
-    blob["state"] = {k_: v for k_, v in blob["state"].items() if k_ not in NEW_KEYS}
-    blob["config"]["shading"].update(exposure=True)
-    torch.save(blob, tmp_path / "old.pt")
-    loaded = load_model(tmp_path / "old.pt")
-    assert loaded.cfg.shading.falloff == "none" and torch.equal(loaded.falloff, torch.zeros(3))
-    blob["config"]["shading"].update(falloff="learned", learn_gamma=True)
-    torch.save(blob, tmp_path / "old_new_defaults.pt")
-    loaded = load_model(tmp_path / "old_new_defaults.pt")
-    ref = render_image(before, prior, k, poses[0])["rgb"]
-    assert np.allclose(render_image(loaded, prior, k, poses[0])["rgb"], ref, atol=1e-5)
-
-
-@pytest.mark.parametrize("piece", ["falloff", "gamma", "exposure"])
-def test_fitting_the_shading_recovers_a_known_photometric_model(piece):
-    on = {
-        "falloff": {"falloff": "learned"},
-        "gamma": {"learn_gamma": True},
-        "exposure": {"exposure": True},
-    }[piece]
-    truth, d, surface, albedo, frame, _ = flat_wall(photometric_config(**on))
-    exposure = torch.tensor([0.0, 0.3, -0.2, 0.1, -0.4, 0.2])  # frame 0 held out
-    with torch.no_grad():
-        truth.falloff.copy_(torch.tensor([-1.2, 0.0, 0.0]))
-        truth.log_gamma.fill_(math.log(1.6))  # from 2.2: 27% off
-        truth.exposure.copy_(exposure + 0.5)  # the mean over trained frames is the gauge
-        truth.ambient_raw.fill_(math.log(math.expm1(0.05)))
-        target = shade(truth, d, surface, albedo, frame)
-    model = flat_wall(photometric_config(**on))[0]
-    fit_shading(model, d, surface, albedo, frame, target)
-    with torch.no_grad():
-        if piece == "falloff":
-            assert abs(model.falloff[0].item() + 1.2) < 0.12, model.falloff
-            c = torch.linspace(0.5, 1.0, 20)
-            assert torch.allclose(model.radial_falloff(c), truth.radial_falloff(c), rtol=0.01)
-        elif piece == "gamma":
-            assert abs(float(model.gamma()) - 1.6) < 0.16, model.gamma()
-        else:
-            got = model._exposure_centred()
-            assert torch.allclose(got[1:], exposure[1:], atol=0.1 * 0.1), got
-            # The held-out frame has no trained exposure: it is rendered at the mean.
-            held = torch.zeros_like(frame)
-            assert torch.equal(
-                shade(model, d, surface, albedo, held), shade(model, d, surface, albedo, None)
-            )
-
-
-def test_every_render_path_sees_the_angle_to_the_optical_axis():
-    """render_image with a distorted lens: the falloff uses the lens-undone ray's angle."""
-    from endopipe.stages.camera import image_directions
-
-    cfg = photometric_config(falloff="learned")
-    frames, train, held, prior, box, _, poses, _ = tiny_setup(cfg, n_frames=4)
-    f = 0.5 * W / np.tan(np.radians(50))
-    k = Camera(
-        width=W,
-        height=H,
-        fx=f,
-        fy=f,
-        cx=(W - 1) / 2,
-        cy=(H - 1) / 2,
-        model="opencv",
-        dist=[-0.3, 0.08, 0.0, 0.0],
-    )
-    model = NerfModel(cfg, box, frames.n, gain=1e-3).eval()  # dim: no channel clips at 1
-    flat = render_image(model, prior, k, poses[1])["rgb"]
-    with torch.no_grad():
-        model.falloff.copy_(torch.tensor([-1.0, 0.5, 0.0]))
-    dimmed = render_image(model, prior, k, poses[1])["rgb"]
-    dirs = image_directions(k)
-    x = 1.0 - dirs[..., 2] / np.linalg.norm(dirs, axis=-1)
-    expected = np.exp(-1.0 * x + 0.5 * x**2)
-    assert x.max() > 0.3
-    ratio = (dimmed / flat) ** cfg.shading.gamma
-    assert np.allclose(ratio, expected[..., None], rtol=1e-3)
 
 
 # --- the stage in the pipeline, killed and resumed -------------------------------------------

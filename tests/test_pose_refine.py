@@ -160,7 +160,7 @@ def _perturbed(poses: list[np.ndarray], frames: list[int], deg: float, pct: floa
 @pytest.mark.xfail(
     strict=True,
     reason="not reached yet on the tube scene: perturbed frames stay near 1 deg / 2 %, and the "
-    "path's end frames drift (issue 16, pose refinement)",
+    "path's end frames drift",
 )
 def test_refinement_moves_perturbed_poses_towards_the_truth(tmp_path):
     """Three training frames off by 1 degree and 2 % of the path: after a short joint training

@@ -1,4 +1,4 @@
-"""The verdict on SfM poses without ground truth (issue 16): drift, jumps and two mappers that
+"""The verdict on SfM poses without ground truth: drift, jumps and two mappers that
 disagree are called doubtful; sound poses are not; the gate refuses in one line."""
 
 from __future__ import annotations
@@ -179,7 +179,8 @@ def test_doubtful_poses_end_the_run_with_a_warning(
 
 @pytest.mark.slow
 def test_bench_cavity_from_video_keeps_the_mapper_that_does_not_drift(tmp_path: Path) -> None:
-    """Issue 16's case: the incremental mapper drifts (ATE 17.7%), the verdict sees it."""
+    """The bench cavity from video: the incremental mapper drifts (ATE 17.7%); the verdict
+    sees it."""
     from endopipe.commands.synth import SynthConfig, generate_case
 
     src = tmp_path / "cavity"

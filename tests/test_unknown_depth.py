@@ -1,4 +1,4 @@
-"""Honest unknowns (issue 14): a ray that meets no surface gets no depth (0), and only an
+"""Honest unknowns: a ray that meets no surface gets no depth (0), and only an
 explicit `depth.fill` gives it the prior's wall, which the mesh still never fuses; a ray whose
 weight the field spreads as haze gets none either."""
 
