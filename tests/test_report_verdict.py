@@ -10,15 +10,12 @@ from pathlib import Path
 
 import pytest
 
-from endopipe.pipeline.cache import Manifest
-from endopipe.stages.ingest.summary import IngestSummary
-from endopipe.stages.poses.summary import PosesSummary
 from endopipe.stages.poses.verdict import FrameVerdict, PoseVerdict
 from endopipe.stages.report.config import ReportConfig
 from endopipe.stages.report.load import load_case
 from endopipe.stages.report.sections import ReportInfo, section_poses, section_summary
 from endopipe.stages.report.sections.pose_verdict import OLD_FOLDER, frame_table
-from tests.handmade_case import N_FRAMES, UNREGISTERED, H, W, make_case
+from tests.handmade_case import N_FRAMES, UNREGISTERED, make_case
 
 DRIFT = "scale drift: the scene's depth changes 7.3x along the path (> 4x)"
 DISAGREE = "the two mappers disagree by 12.4% of the path (> 5%)"
@@ -52,44 +49,8 @@ def doubtful_verdict() -> PoseVerdict:
 
 
 def poses_case(tmp_path: Path) -> Path:
-    """The hand-made case up to its poses, with the whole summaries the stages write: the
-    report reads each stage's summary model, and make_case writes only a few of its fields."""
-    case = make_case(tmp_path, gt=False, stages=("ingest", "poses"))
-    ingest = IngestSummary(
-        kind="case",
-        source_frames=N_FRAMES,
-        read=N_FRAMES,
-        kept=N_FRAMES,
-        dropped={},
-        width=W,
-        height=H,
-        fov_shape="full",
-        fov_fraction=1.0,
-        mean_specular_fraction=0.0,
-        has_intrinsics=True,
-        has_ground_truth=False,
-    )
-    poses = PosesSummary(
-        source="test",
-        registered=N_FRAMES - 1,
-        total=N_FRAMES,
-        registered_fraction=(N_FRAMES - 1) / N_FRAMES,
-        unregistered=str(UNREGISTERED),
-        camera_model="PINHOLE",
-        intrinsics="fixed",
-        fx=50.0,
-        fy=52.0,
-        cx=31.0,
-        cy=24.5,
-        metric=False,
-        aligned_to_gt=False,
-        points=0,
-        seconds=3.4,
-    )
-    for folder, summary in ((case / "01_ingest", ingest), (case / "02_poses", poses)):
-        manifest = Manifest.load(folder).model_copy(update={"summary": summary.model_dump()})
-        (folder / "manifest.json").write_text(manifest.model_dump_json(indent=2))
-    return case
+    """The hand-made case up to its poses (with the whole summaries the stages write)."""
+    return make_case(tmp_path, gt=False, stages=("ingest", "poses"))
 
 
 def sections(tmp_path: Path, verdict: PoseVerdict | None) -> tuple[str, str]:
