@@ -280,6 +280,17 @@ def bench(
             "vignetting, lens); poses.csv and poses.md."
         ),
     ] = None,
+    profile: Annotated[
+        bool,
+        typer.Option(
+            help="Each stage's wall time, CPU time and peak memory on each case (default: the "
+            "bench colon) and each --input, run from nothing; profile.md and profile.csv."
+        ),
+    ] = False,
+    input_: Annotated[
+        list[Path] | None,
+        typer.Option("--input", help="With --profile: also a real input (repeatable)."),
+    ] = None,
 ) -> None:
     """The paper's Table 1 on fixed-seed synthetic cases with ablations; CSV and markdown."""
     from endopipe.commands.bench_command import run_bench_command
@@ -292,6 +303,8 @@ def bench(
         cases=case,
         variants=variant,
         sweep=sweep,
+        profile=profile,
+        inputs=input_,
     )
 
 

@@ -81,6 +81,8 @@ class Manifest(BaseModel):
     started: float
     finished: float
     wall_s: float
+    #: CPU seconds of the process while the stage ran, every thread (None: not measured)
+    cpu_s: float | None = None
     peak_rss_mb: float
     summary: dict
     files: dict[str, FileEntry]

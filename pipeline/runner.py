@@ -64,6 +64,7 @@ class StageRecord(BaseModel):
     status: Literal["ran", "cached", "failed"]
     reason: str
     wall_s: float = 0.0
+    cpu_s: float | None = None
     peak_rss_mb: float = 0.0
     summary: dict = {}
 
@@ -368,7 +369,7 @@ class Pipeline:
             quiet=quiet,
         )
         started = time.time()
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         try:
             with PeakMemory() as mem:
                 summary = stage_cls().run(ctx)
@@ -376,7 +377,7 @@ class Pipeline:
             if not stage_cls.resumable:
                 shutil.rmtree(tmp, ignore_errors=True)
             raise
-        wall = time.perf_counter() - t0
+        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
         manifest = Manifest(
             stage=stage_cls.name,
             key=p.key,
@@ -386,6 +387,7 @@ class Pipeline:
             started=started,
             finished=time.time(),
             wall_s=wall,
+            cpu_s=cpu,
             peak_rss_mb=mem.peak_mb,
             summary=summary.model_dump(mode="json"),
             files=list_files(tmp),
@@ -396,6 +398,7 @@ class Pipeline:
             status="ran",
             reason=p.reason,
             wall_s=wall,
+            cpu_s=cpu,
             peak_rss_mb=mem.peak_mb,
             summary=manifest.summary,
         )

@@ -232,3 +232,22 @@ def test_a_sweep_run_stops_after_poses_and_its_row_reads_the_verdict(tmp_path: P
     case_dir = tmp_path / "runs" / "gt"
     assert pipe.manifest(case_dir, "poses") and not pipe.folder(case_dir, "centerline").exists()
     assert "| not assessed |" in pose_table(rows)
+
+
+def test_the_profile_shows_each_stages_time_cpu_and_memory_beside_the_accuracy(
+    tiny_case: Path,
+) -> None:
+    from endopipe.commands.profile import profile_rows, profile_table
+
+    rows = profile_rows(build_pipeline(), tiny_case, 1.0)
+    stages = [r.stage for r in rows]
+    assert stages == ["ingest", "poses", "centerline", "nerf", "depth", "mesh", "report", "all"]
+    by = {r.stage: r for r in rows}
+    for r in rows[:-1]:
+        assert r.wall_s > 0 and r.cpu_s is not None and r.cpu_s > 0 and r.peak_mb > 50, r
+    # the NeRF trains with one torch thread here: about one core busy, never several
+    assert 0.5 < by["nerf"].threads_busy < 1.6, by["nerf"]
+    assert "600 steps" in by["nerf"].note and "ms per map" in by["depth"].note
+    assert "AbsRel" in by["all"].note and "Chamfer" in by["all"].note
+    assert by["all"].cpu_s == pytest.approx(sum(r.cpu_s for r in rows[:-1]))
+    assert "| colon | **all** |" in profile_table(rows)

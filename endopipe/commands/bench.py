@@ -202,14 +202,7 @@ def run_bench(
     makes a row as `collect_row` does, but from the BenchCase (default: `collect_row`)."""
     rows: list[dict] = []
     for case in bench_plan.cases:
-        src = synth_input(workdir / "inputs", case, console)
-        source = src / "video.mp4"
-        if not case.given_lens:  # the same frames and truth, the camera left to COLMAP
-            source = workdir / "inputs" / case.name
-            source.mkdir(parents=True, exist_ok=True)
-            for part in ("video.mp4", "gt"):
-                if not (source / part).exists():
-                    (source / part).symlink_to((src / part).resolve())
+        source = case_input(workdir / "inputs", case, console)
         for variant in bench_plan.variants:
             sets = [*bench_plan.sets, *case.sets, *VARIANTS[variant], *(extra_sets or [])]
             configs = load_config(pipe.stages, [], sets)
@@ -232,6 +225,21 @@ def run_bench(
             if on_row is not None:
                 on_row(rows)
     return rows
+
+
+def case_input(inputs: Path, case: BenchCase, console) -> Path:
+    """What the pipeline reads for `case`: the synthetic video (its case folder gives the
+    intrinsics and ground truth), or without the lens a folder of links to its video and truth
+    only (the camera left to COLMAP)."""
+    src = synth_input(inputs, case, console)
+    if case.given_lens:
+        return src / "video.mp4"
+    source = inputs / case.name
+    source.mkdir(parents=True, exist_ok=True)
+    for part in ("video.mp4", "gt"):
+        if not (source / part).exists():
+            (source / part).symlink_to((src / part).resolve())
+    return source
 
 
 def synth_input(inputs: Path, case: BenchCase, console) -> Path:

@@ -26,15 +26,28 @@ def run_bench_command(
     cases: list[str] | None,
     variants: list[str] | None,
     sweep: str | None,
+    profile: bool = False,
+    inputs: list[Path] | None = None,
 ) -> None:
     """Plan, run and tabulate; the extra settings are checked before hours of work."""
     from endopipe.commands import bench as b
     from endopipe.pipeline.config import load_config
+    from endopipe.pipeline.errors import ConfigError
     from endopipe.pipeline.runner import ensure_writable
 
+    if inputs and not profile:
+        raise ConfigError("--input is for --profile: real inputs are profiled, not tabled")
     ensure_writable(workdir)
     pipe = build_pipeline()
-    load_config(pipe.stages, [], sets)  # validate extra settings before hours of work
+    configs = load_config(pipe.stages, [], sets)  # validate extra settings before hours of work
+    if profile:
+        if quick or variants or sweep:
+            raise ConfigError(
+                "--profile runs each case once with the defaults: no --quick, --variant or --sweep"
+            )
+        named = cases or ([] if inputs else ["colon"])  # inputs alone: only those
+        bench_cases = b.plan(False, named).cases if named else []
+        return run_profile(pipe, workdir, configs, bench_cases, inputs)
     bench_plan = b.plan(quick, cases, variants, sweep)
     name, write_csv, table_of, collect = "bench", b.write_csv, b.markdown_table, None
     if sweep is not None:
@@ -52,3 +65,27 @@ def run_bench_command(
         f"bench finished in {time.perf_counter() - t0:.0f} s; "
         f"{workdir / f'{name}.csv'}, {workdir / f'{name}.md'}"
     )
+
+
+def run_profile(
+    pipe: Pipeline, workdir: Path, configs: dict, cases: list, inputs: list[Path] | None
+) -> None:
+    """Each bench case and each real input from nothing; profile.md and profile.csv."""
+    from pathlib import Path
+
+    from endopipe.commands import bench as b
+    from endopipe.commands import profile as p
+
+    def prepare(source: Path, where: Path, name: str) -> Path:
+        return prepare_case(source, where, name, None)
+
+    sources = [(c.name, b.case_input(workdir / "inputs", c, console)) for c in cases]
+    sources += [(Path(i).stem or Path(i).name, Path(i)) for i in inputs or []]
+    rows: list = []
+    for name, source in sources:
+        console.print(f"[bold cyan]profile: {name}[/bold cyan]")
+        rows += p.profile_case(pipe, source, workdir / "profile" / name, configs, prepare, console)
+        p.write_profile_csv(workdir / "profile.csv", rows)
+        (workdir / "profile.md").write_text(p.profile_table(rows) + "\n")
+    out.print(p.profile_table(rows), markup=False, highlight=False, soft_wrap=True)
+    out.print(f"profile: {workdir / 'profile.md'}, {workdir / 'profile.csv'}")
