@@ -1,4 +1,4 @@
-"""RGB | our depth | ground-truth panel for a few frames of a finished case (README picture).
+"""RGB | our depth | ground-truth panel for a few frames of a finished case (the README picture).
 
     .venv/bin/python scripts/depth_figure.py WORKDIR/CASE OUT.png --frames 5 35 65 [--relief]
 

@@ -1,5 +1,5 @@
 """Re-score finished cases' depth maps against their ground truth as read today, and say where
-along the image radius the error sits (README: C3VD re-scored, its radial error, the lens).
+along the image radius the error sits (docs/results.md: C3VD re-scored, its radial error, the lens).
 
     .venv/bin/python scripts/rescore_depth.py WORKDIR/CASE [WORKDIR/CASE ...] [--lens-check]
 

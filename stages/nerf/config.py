@@ -248,7 +248,7 @@ class LossConfig(_Section):
         ge=0,
         description="lambda_2 (the seed: 0.05, in the paper preset). A gradient penalty pulls a "
         "tube's walls towards the image plane: at 0.05 the 60-frame colon's field came out 4% "
-        "short and its mesh 8.9% of the radius off; at 0.01, 7.2% (README).",
+        "short and its mesh 8.9% of the radius off; at 0.01, 7.2% (docs/experiments.md).",
     )
     lambda_geo: float = Field(0.01, ge=0, description="lambda_3.")
     prior_start: float = Field(
@@ -415,7 +415,7 @@ class FarViewConfig(_Section):
     """Regularisers added when `field.warp: auto` leaves the grid unwarped (a scope that looks
     far): its far cells are then as fine as the near ones and each is seen by few pixels, so
     these and a coarser grid take the place of the smoothing that growing cells gave (C3VD:
-    at 384 nodes a plane of the grid showed as a crease down the near wall; README)."""
+    at 384 nodes a plane of the grid showed as a crease down the near wall)."""
 
     tv_weight: float = Field(
         1.0, ge=0, description="Total-variation penalty on the density planes (at least this)."
