@@ -137,10 +137,8 @@ def small_colon(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_poses_stage_writes_its_verdict_and_both_mappers(small_colon: Path, tmp_path: Path) -> None:
-    assert (
-        main(["run", str(small_colon), "--workdir", str(tmp_path), "--until", "poses", "--quiet"])
-        == 0
-    )
+    both = ["--set", "poses.mapper=both"]
+    assert main([*run_args(small_colon, tmp_path), *both]) == 0
     folder = tmp_path / "colon" / "02_poses"
     s = json.loads((folder / "manifest.json").read_text())["summary"]
     verdict = json.loads((folder / "verdict.json").read_text())
@@ -175,6 +173,26 @@ def test_doubtful_poses_end_the_run_with_a_warning(
     assert last.startswith("poses doubtful: scale drift"), last
     assert main(run_args(small_colon, tmp_path / "plain")) == 0  # sound poses: no such line
     assert "poses doubtful" not in "".join(capsys.readouterr())
+    # sound global poses ask for no second opinion: the incremental mapper did not run
+    plain = tmp_path / "plain" / "colon" / "02_poses"
+    verdict = json.loads((plain / "verdict.json").read_text())
+    assert verdict["mapper"] == "global", verdict
+    assert verdict["others"]["incremental"].startswith("not run"), verdict["others"]
+    timings = json.loads((plain / "manifest.json").read_text())["summary"]["timings"]
+    assert "incremental_mapping_s" not in timings and "global_mapping_s" in timings
+
+
+def test_doubtful_global_poses_ask_the_incremental(small_colon: Path, tmp_path: Path) -> None:
+    """mapper auto: a global result the verdict doubts on its own (here: a drift limit no path
+    meets) gets the incremental mapper's second opinion on the same matches."""
+    strict = ["--set", "poses.verdict.max_depth_drift=1.0001"]
+    assert main([*run_args(small_colon, tmp_path), *strict]) == 0
+    folder = tmp_path / "colon" / "02_poses"
+    timings = json.loads((folder / "manifest.json").read_text())["summary"]["timings"]
+    assert {"global_mapping_s", "incremental_mapping_s"} <= set(timings), timings
+    verdict = json.loads((folder / "verdict.json").read_text())
+    other = ({"global", "incremental"} - {verdict["mapper"]}).pop()
+    assert not verdict["others"][other].startswith("not run"), verdict["others"]
 
 
 @pytest.mark.slow
@@ -189,10 +207,8 @@ def test_bench_cavity_from_video_keeps_the_mapper_that_does_not_drift(tmp_path: 
     video.mkdir()
     for part in ("video.mp4", "gt", "intrinsics.json"):
         (video / part).symlink_to(src / part)
-    assert (
-        main(["run", str(video), "--workdir", str(tmp_path / "w"), "--until", "poses", "--quiet"])
-        == 0
-    )
+    both = ["--set", "poses.mapper=both"]  # auto would not run the drifting mapper at all
+    assert main([*run_args(video, tmp_path / "w"), *both]) == 0
     folder = tmp_path / "w" / "in" / "02_poses"
     s = json.loads((folder / "manifest.json").read_text())["summary"]
     verdict = json.loads((folder / "verdict.json").read_text())

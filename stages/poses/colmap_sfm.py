@@ -56,9 +56,11 @@ def run_sfm(
     intrinsics: Camera | None,
     progress: ProgressFactory,
     log: Callable[[str], None] = lambda _: None,
+    doubt: Callable[[SfmResult], str | None] = lambda _: None,
 ) -> list[SfmResult]:
-    """Features -> matches -> each mapper of `cfg.mapper` on the same matches (auto: global and
-    incremental; the poses stage keeps one by its verdict). One SfmResult per mapper run."""
+    """Features -> matches, once -> the mappers of `cfg.mapper` on those matches (both: global
+    and incremental; auto: global, then incremental only when `doubt` finds the global result
+    doubtful and says why). One SfmResult per mapper run; the poses stage keeps one."""
     scratch.mkdir(parents=True, exist_ok=True)
     database = scratch / "database.db"
     names = list(ingest.index_by_name())
@@ -73,15 +75,22 @@ def run_sfm(
         match(database, cfg, len(names))
         timings["matching_s"] = time.perf_counter() - t
         advance(info=f"{num_verified_pairs(database)} verified pairs")
-    mappers = ["global", "incremental"] if cfg.mapper == "auto" else [cfg.mapper]
-    results = []
+    alone = cfg.mapper in ("global", "incremental")
+    mappers = [cfg.mapper] if alone else ["global", "incremental"]
+    results: list[SfmResult] = []
     for mapper in mappers:
+        if cfg.mapper == "auto" and results:
+            why = doubt(results[0])
+            if why is None:
+                log(f"{results[0].mapper} poses sound on their own: no second opinion")
+                break
+            log(f"{results[0].mapper} poses doubtful ({why}): the {mapper} mapper too")
         t = time.perf_counter()
         run = sfm_global if mapper == "global" else sfm_incremental
         try:
             result = run(ingest, database, scratch, cfg, intrinsics, progress)
         except StageFailed as e:  # with another mapper to try, one failure is not the stage's
-            if len(mappers) == 1:
+            if alone:
                 raise
             result = SfmResult(mapper, None, None, None, {}, [], str(e), 0)
         result.timings = {**timings, f"{mapper}_mapping_s": time.perf_counter() - t}

@@ -130,10 +130,13 @@ class PosesConfig(StageConfig):
     quadratic_overlap: bool = Field(
         True, description="Sequential matching: also match frames 2^k apart."
     )
-    mapper: Literal["auto", "global", "incremental"] = Field(
+    mapper: Literal["auto", "both", "global", "incremental"] = Field(
         "auto",
-        description="COLMAP mapper. auto: the global and the incremental mapper on the same "
-        "matches, the one the verdict finds sounder kept (their disagreement is evidence too).",
+        description="COLMAP mapper. auto: the global mapper, and the incremental one on the same "
+        "matches only when the verdict finds the global poses doubtful on their own (a second "
+        "opinion; the sounder is kept). both: always both (their disagreement, and that of their "
+        "self-calibrated lenses, is evidence too; C3VD: +170 s, and a wrong second lens that made "
+        "sound poses doubtful).",
     )
     verdict: VerdictConfig = Field(
         default_factory=VerdictConfig,

@@ -16,6 +16,7 @@ import os
 import shutil
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -47,6 +48,9 @@ from endopipe.stages.poses.verdict import (
 )
 from endopipe.stages.poses.view import CamerasFile, PosesView
 
+if TYPE_CHECKING:
+    from endopipe.stages.poses.colmap_sfm import SfmResult
+
 __all__ = ["Poses", "PosesConfig", "PosesSummary"]
 
 
@@ -55,7 +59,7 @@ class Poses(Stage):
 
     name = "poses"
     needs = ("ingest",)
-    version = 2  # 2: sparse points triangulated from known poses
+    version = 3  # 3: mapper auto asks the incremental mapper only when the global poses are doubtful
     Config = PosesConfig
 
     @classmethod
@@ -245,12 +249,22 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Esti
 
     known = ingest.intrinsics
     scratch = ctx.out / "colmap"
+    index_of = ingest.index_by_name()
+    n = len(ingest.frames)
+
+    def doubt(result: SfmResult) -> str | None:
+        """Why `result`'s poses are doubtful on their own (None: sound, no second opinion)."""
+        if result.reconstruction is None:
+            return f"no model: {result.merge}"
+        ev = evidence_from_reconstruction(result.reconstruction, index_of)
+        alone = judge(ev, n, cfg.verdict, result.mapper)
+        return ("; ".join(alone.reasons) or "doubtful") if alone.status != "ok" else None
+
     try:
-        results = run_sfm(ingest, scratch, cfg, known, ctx.progress, ctx.log)
+        results = run_sfm(ingest, scratch, cfg, known, ctx.progress, ctx.log, doubt)
     finally:
         clean_scratch(scratch, cfg.keep_database, ("images", "masks", "largest", "global"))
     by_mapper = {r.mapper: r for r in results}
-    index_of = ingest.index_by_name()
     evidence = {
         r.mapper: evidence_from_reconstruction(r.reconstruction, index_of)
         if r.reconstruction is not None
@@ -260,7 +274,12 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Esti
     if not any(ev is not None and len(ev.index) for ev in evidence.values()):
         check_registered(0, len(ingest.frames), cfg)
     failures = {r.mapper: r.merge for r in results if r.reconstruction is None}
-    verdict = pick_mapper(evidence, len(ingest.frames), cfg.verdict, failures)
+    verdict = pick_mapper(evidence, n, cfg.verdict, failures)
+    if cfg.mapper == "auto" and len(results) == 1:
+        verdict.others["incremental"] = (
+            f"not run: the {results[0].mapper} mapper's poses were sound on their own "
+            "(poses.mapper=both runs it too)"
+        )
     sfm = by_mapper[verdict.mapper]
     rec = sfm.reconstruction
     fixed = known is not None and not cfg.refine_known_intrinsics
