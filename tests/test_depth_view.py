@@ -88,3 +88,25 @@ def test_holes_show_in_a_colour_no_depth_or_error_has() -> None:
         return int((img == NO_DEPTH).all(axis=-1).sum())
 
     assert holes(legend) > holes(shown)  # and the legend shows the hole's colour
+
+
+def test_the_far_bakes_ramp_gives_the_weight_quartiles_of_a_linear_wall() -> None:
+    """A density rising linearly from zero at t = 10 (slope m) has optical depth m (t - 10)^2 / 2:
+    the transmittance is 3/4, 1/2, 1/4 at t = 10 + sqrt(2 ln(4/3) / m), ... exactly; three level
+    crossings are all the ramp needs, wherever the quartiles fall among them."""
+    import numpy as np
+
+    from endopipe.stages.nerf.baked import ramp_quantiles
+
+    taus = np.log([4 / 3, 2.0, 4.0])
+    for m, levels in ((0.5, np.array([0.1, 0.5, 1.0])), (40.0, np.array([0.4, 2.0, 4.0]))):
+        t = (10.0 + levels / m)[:, None]  # where the density crosses each level
+        got = ramp_quantiles(t, levels, taus)[:, 0]
+        assert np.allclose(got, 10.0 + np.sqrt(2 * taus / m), rtol=0, atol=1e-9), (m, got)
+    # a gentle ramp (haze) spreads the weight over far more of the depth than a steep wall
+    spread = {}
+    for m in (0.01, 50.0):
+        levels = np.array([0.1, 0.5, 1.0])
+        q = ramp_quantiles((30.0 + levels / m)[:, None], levels, taus)[:, 0]
+        spread[m] = (q[2] - q[0]) / q[1]
+    assert spread[50.0] < 0.01 < 0.15 < spread[0.01], spread

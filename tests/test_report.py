@@ -487,7 +487,6 @@ def test_render_times_say_what_they_time(tiny_case: Path) -> None:
     depth = Manifest.load(folders_of(tiny_case)["depth"]).summary
     assert "Render time per frame" not in page
     expected = (
-        f"Field render time, depth only {visible_text(fmt(nerf['render_ms'], 'ms'))} per held-out",
         f"Field render time, colour and depth {visible_text(fmt(nerf['render_rgb_ms'], 'ms'))}",
         f"Depth stage render time {visible_text(fmt(depth['ms_per_frame'], 'ms'))} per frame",
     )

@@ -41,7 +41,7 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    version = 5  # 5: no depth where a ray's weight is spread; no baked floaters
+    version = 6  # 6: rays the fine bake misses answered by a far bake
     Config = DepthConfig
 
     @classmethod
@@ -61,7 +61,7 @@ class Depth(Stage):
             k = k.scaled(ingest.width, ingest.height)
         c2w = nerf.c2w(poses)  # the poses the field was fitted to (refined, when it refined)
         t_bake = time.perf_counter()
-        renderer = make_renderer(cfg, model, prior, [c2w[i] for i in poses.registered], k)
+        renderer = make_renderer(cfg, model, prior, [c2w[i] for i in poses.registered], k, nerf)
         bake_s = time.perf_counter() - t_bake
         heldout = set(getattr(model, "meta", {}).get("heldout", []))
         beyond_lens = ~lens_valid_mask(k)  # no ray there: no depth (poses logs how much)
@@ -128,10 +128,17 @@ class Depth(Stage):
         )
 
 
-def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k):
+def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, nerf: NerfView):
     """A function (intrinsics, c2w, frame, colour) -> {depth, opacity[, rgb]}; depth is 0
-    where the ray found no surface (unless `fill`)."""
+    where the ray found no surface (unless `fill`). Colour is the nerf stage's own rendering
+    of the held-out frame when it kept one (the field is the same: no second render)."""
     from endopipe.stages.nerf.render import render_image, surface_found
+
+    def colour_of(k, c2w, i) -> np.ndarray:
+        kept = nerf.heldout_rgb(i)
+        if kept is not None and kept.shape[:2] == (k.height, k.width):
+            return kept
+        return render_image(model, prior, k, c2w, colour=True)["rgb"]
 
     if cfg.renderer == "field":
 
@@ -144,8 +151,17 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k):
             return out
 
         return render_field
-    from endopipe.stages.nerf.baked import BakedSurface
+    from endopipe.stages.nerf.baked import BakedSurface, FarSettings
 
+    far = None
+    if cfg.far == "baked":
+        far = FarSettings(
+            voxels_per_radius=cfg.far_voxels_per_radius,
+            reach_radii=model.cfg.sampling.far_radii,
+            max_nodes=cfg.far_max_nodes,
+            haze_level=cfg.far_haze_level,
+            spread_level=cfg.far_spread_level,
+        )
     baked = BakedSurface.bake(
         model,
         prior,
@@ -154,12 +170,13 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k):
         cfg.bake_voxels_per_radius,
         cfg.bake_density_level,
         min_component_radii=cfg.bake_min_component,
+        far=far,
     )
 
     def render(k, c2w, i, colour):
         out = baked.render_depth(k, c2w, cfg.min_opacity, cfg.fill, cfg.max_spread)
-        if colour:  # colour needs the albedo field: render it exactly, only for held-out frames
-            out["rgb"] = render_image(model, prior, k, c2w, colour=True)["rgb"]
+        if colour:  # colour needs the albedo field: only for held-out frames
+            out["rgb"] = colour_of(k, c2w, i)
         return out
 
     return render

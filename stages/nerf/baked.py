@@ -5,15 +5,24 @@ prior's band (marching cubes), and each depth map is then one Embree ray cast pe
 Measured on a trained 160x128 case, 2 loaded CPU cores: a per-sample grid marcher with early
 termination still took 2.5-3 s per frame (rays down the lumen never terminate); ray casting
 the baked surface takes milliseconds. The iso-surface is the same one the mesh stage extracts.
+
+Rays that miss it (down the lumen past the band's reach, through a hole in it) meet `FarBake`:
+the field's density on a coarser grid over everything the cameras see, cut at three levels.
+Where a ray crosses the three levels outlines the density's ramp into the wall, and so where
+its weight lies: its depth and whether the field spread it over no one surface (haze), the
+same two answers the volume renderer gives, for three ray casts instead of volume-rendering a
+fifth of a C3VD map's rays (500 ms a map).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from endopipe.stages.camera import Camera, image_directions
+from endopipe.stages.surface.marching import iso_level
 
 
 @dataclass
@@ -24,6 +33,7 @@ class BakedSurface:
     faces: np.ndarray
     prior: object | None = None
     model: object | None = None  # the field, asked exactly about the rays the surface misses
+    far: FarBake | None = None  # ... unless the far bake answers them
 
     def __post_init__(self) -> None:
         from endopipe.stages.surface.raycast import raycasting_scene
@@ -42,18 +52,21 @@ class BakedSurface:
         band: float = 0.6,
         reach_radii: float = 2.5,
         min_component_radii: float = 0.0,
+        far: FarSettings | None = None,
     ) -> BakedSurface:
         """Iso-surface of the field's density in the prior's band, over the cameras' frustums,
         at `density_level` per lumen radius (None: the density at the field's rendered surface,
         from `surface_density_level`), without the connected pieces less than
-        `min_component_radii` lumen radii across (floaters: the mesh stage drops them too)."""
+        `min_component_radii` lumen radii across (floaters: the mesh stage drops them too).
+        With `far`, the rays the surface misses are answered by a `FarBake`, not the field."""
         from endopipe.stages.nerf.render import surface_density_level
         from endopipe.stages.surface.clean import drop_small_components
-        from endopipe.stages.surface.marching import density_mesh, field_density_fn, iso_level
+        from endopipe.stages.surface.marching import density_mesh, field_density_fn
 
         calibrated = None
         if density_level is None:
             calibrated = surface_density_level(model, prior, intrinsics, c2ws)
+        level = iso_level(calibrated, density_level, float(prior.typical_radius))
 
         # The surface is baked up to `reach_radii` lumen radii from each camera: further out the
         # grid grows with the cube of the reach, and rays that miss are volume-rendered exactly.
@@ -65,13 +78,16 @@ class BakedSurface:
             c2ws,
             intrinsics,
             depth_trunc,
-            iso_level(calibrated, density_level, radius),
+            level,
             spacing=radius / voxels_per_radius,
             band=band,
         )
         if min_component_radii > 0:
             mesh, _ = drop_small_components(mesh, 0.0, min_component_radii * radius)
-        return cls(np.asarray(mesh.vertices), np.asarray(mesh.faces), prior, model)
+        far_bake = None
+        if far is not None:
+            far_bake = FarBake.bake(model, c2ws, intrinsics, level, radius, far)
+        return cls(np.asarray(mesh.vertices), np.asarray(mesh.faces), prior, model, far_bake)
 
     def render_depth(
         self,
@@ -106,7 +122,15 @@ class BakedSurface:
         opacity = hit.astype(np.float32)
         miss = ~hit.reshape(-1)
         hazy = np.zeros(k.height * k.width, bool)
-        if self.model is not None and miss.any():
+        if self.far is not None and miss.any():
+            t_far, spread = self.far.cast(o[miss], d[miss])
+            reached = np.isfinite(t_far)
+            if max_spread is not None:
+                hazy[miss] = reached & (spread > max_spread)
+            found = reached & ~hazy[miss]
+            opacity.reshape(-1)[miss] = reached
+            depth.reshape(-1)[miss] = np.where(found, t_far / norm.reshape(-1)[miss], 0.0)
+        elif self.model is not None and miss.any():
             z, op, spread = self._render_missed(k, c2w, np.nonzero(miss)[0])
             opacity.reshape(-1)[miss] = op
             found, hazy[miss] = surface_found(op, spread, min_opacity, max_spread)
@@ -126,7 +150,7 @@ class BakedSurface:
         `pixels`."""
         import torch
 
-        from endopipe.stages.camera import pixel_rays
+        from endopipe.stages.camera import direction_table, pixel_rays
         from endopipe.stages.nerf.bounds import scene_bounds
         from endopipe.stages.nerf.render import weight_spread
 
@@ -137,14 +161,154 @@ class BakedSurface:
         )
         u = torch.as_tensor(pixels % k.width, dtype=torch.float32, device=dev)
         v = torch.as_tensor(pixels // k.width, dtype=torch.float32, device=dev)
+        table = direction_table(k, dev)  # the lens undone once per camera, not per chunk
         zs, ops, spreads = [], [], []
         chunk = model.cfg.sampling.chunk
         with torch.no_grad():
             for a in range(0, len(pixels), chunk):
-                o, d = pixel_rays(k, c2w_s, u[a : a + chunk], v[a : a + chunk])
+                o, d = pixel_rays(k, c2w_s, u[a : a + chunk], v[a : a + chunk], table)
                 near, far = scene_bounds(model, self.prior, o, d)
                 out = model.render_rays(o, d, near, far, colour=False)
                 zs.append(out["depth"] * model.box.scale)
                 spreads.append(weight_spread(out, far))
                 ops.append(out["opacity"])
         return tuple(torch.cat(a).float().cpu().numpy() for a in (zs, ops, spreads))
+
+
+@dataclass(frozen=True)
+class FarSettings:
+    """How the far bake samples the field (depth.far_* settings)."""
+
+    voxels_per_radius: float = 8.0
+    reach_radii: float = 12.0  # as far as the NeRF samples (nerf.sampling.far_radii)
+    max_nodes: int = 30_000_000  # a wider view gets a coarser grid, not more memory
+    haze_level: float = 0.1  # fractions of the surface level, see FarBake
+    spread_level: float = 0.5
+
+
+class FarBake:
+    """The field's density on a coarse grid over every camera's view up to the sampling reach,
+    as three iso-surfaces: at the surface level L and at two fractions of it. Along a ray, the
+    three first crossings outline the density's ramp into the wall (linear between them,
+    from zero before the first); its optical depth then says where the transmittance falls to
+    3/4, 1/2 and 1/4: the quartiles of the ray's weight, as the volume renderer has them. The
+    middle one is the depth, their spread (IQR over the median) the spread check's measure.
+    C3VD, against the volume-rendered rays: depth |diff| median 0.42% (the level crossing
+    alone: 1.4%), spread over 0.15 on 0.94 of the rays it flags."""
+
+    def __init__(self, level: float, fractions: tuple[float, float], scenes: list[Any]) -> None:
+        self.level, self.fractions, self._scenes = level, fractions, scenes
+
+    @classmethod
+    def bake(
+        cls,
+        model: Any,
+        c2ws: list[np.ndarray],
+        camera: Camera,
+        level: float,
+        radius: float,
+        settings: FarSettings,
+    ) -> FarBake:
+        from endopipe.stages.surface.evaluate import frustum_box
+        from endopipe.stages.surface.marching import (
+            band_density_grid,
+            field_density_fn,
+            marching_cubes_mesh,
+        )
+
+        lo, hi = frustum_box(c2ws, camera, settings.reach_radii * radius)
+        spacing = max(
+            radius / settings.voxels_per_radius,
+            float(np.prod(hi - lo) / settings.max_nodes) ** (1 / 3),
+        )
+        grid = band_density_grid(field_density_fn(model), _Everywhere(), lo, hi, spacing, 1.0)
+        fractions = (settings.haze_level, settings.spread_level)
+        scenes = []
+        for fraction in (*fractions, 1.0):
+            mesh = marching_cubes_mesh(grid, level * fraction)
+            scenes.append(_scene(mesh.vertices, mesh.faces))
+        return cls(level, fractions, scenes)
+
+    def cast(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each ray's depth (the ray parameter where half its light is left; inf: it reaches
+        no surface) and the spread of its weight (IQR / median; inf where the ramp is not
+        known). `dirs` unit vectors, so that the density (per world unit) integrates along t."""
+        t = np.stack([_cast(scene, origins, dirs) for scene in self._scenes])  # (3, N)
+        levels = self.level * np.array([*self.fractions, 1.0])
+        # A thin wall between coarse nodes can peak under L on the grid though the field's
+        # surface is there: its ramp, continued, crosses L (the tube 2.5-3 radii ahead, where
+        # the fine bake ends: 2.6% of the pixels otherwise unknown).
+        thin = np.isfinite(t[1]) & ~np.isfinite(t[2]) & (t[1] > t[0])
+        slope = (levels[1] - levels[0]) / (t[1, thin] - t[0, thin])
+        t[2, thin] = t[1, thin] + (levels[2] - levels[1]) / slope
+        ramp = np.isfinite(t).all(0) & (np.diff(t, axis=0) > 0).all(0)
+        q = np.full((3, t.shape[1]), np.inf)
+        if ramp.any():
+            q[:, ramp] = ramp_quantiles(t[:, ramp], levels, np.log([4 / 3, 2.0, 4.0]))
+        depth = np.where(ramp, q[1], t[2])  # no ramp (a surface met head on): the crossing
+        with np.errstate(invalid="ignore", divide="ignore"):
+            spread = np.where(ramp, (q[2] - q[0]) / q[1], np.where(np.isfinite(t[2]), 0.0, np.inf))
+        return depth, spread
+
+
+def ramp_quantiles(t: np.ndarray, levels: np.ndarray, taus: np.ndarray) -> np.ndarray:
+    """Where the optical depth of a piecewise-linear density reaches each of `taus`: density
+    `levels[j]` at `t[j]` (3, N), rising linearly between them, from zero before the first (the
+    first segment's slope) and on beyond the last (the last segment's). Returns (len(taus), N)."""
+    a0, a1, a2 = levels
+    m0 = (a1 - a0) / (t[1] - t[0])
+    m2 = (a2 - a1) / (t[2] - t[1])
+    # optical depth at each crossing: the ramp from zero, then trapezoids
+    tau0 = a0 * a0 / (2 * m0)
+    tau1 = tau0 + 0.5 * (a0 + a1) * (t[1] - t[0])
+    tau2 = tau1 + 0.5 * (a1 + a2) * (t[2] - t[1])
+    out = []
+    for tau in taus:
+        before = t[0] - a0 / m0 + np.sqrt(2 * tau / m0)
+        first = _linear_reach(tau - tau0, a0, m0) + t[0]
+        second = _linear_reach(tau - tau1, a1, m2) + t[1]
+        beyond = _linear_reach(tau - tau2, a2, m2) + t[2]
+        out.append(
+            np.where(
+                tau <= tau0,
+                before,
+                np.where(tau <= tau1, first, np.where(tau <= tau2, second, beyond)),
+            )
+        )
+    return np.stack(out)
+
+
+def _linear_reach(c: np.ndarray, a: float, m: np.ndarray) -> np.ndarray:
+    """x >= 0 with a x + m x^2 / 2 = c (density a rising at slope m > 0 gathers c over x)."""
+    c = np.maximum(c, 0.0)
+    return 2 * c / (a + np.sqrt(a * a + 2 * m * c))
+
+
+class _Everywhere:
+    """A 'prior' whose band holds every grid node (the far bake samples the whole view)."""
+
+    def signed_distance(self, points: Any) -> Any:
+        import torch
+
+        return torch.zeros(len(points))
+
+    def radius_at(self, points: Any) -> Any:
+        import torch
+
+        return torch.ones(len(points))
+
+
+def _scene(vertices: np.ndarray, faces: np.ndarray) -> Any:
+    from endopipe.stages.surface.raycast import raycasting_scene
+
+    return raycasting_scene(vertices, faces) if len(faces) else None
+
+
+def _cast(scene: Any, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """First-hit ray parameter of each ray (inf: a miss, or no surface at all)."""
+    if scene is None or not len(dirs):
+        return np.full(len(dirs), np.inf)
+    import open3d as o3d
+
+    rays = np.concatenate([np.broadcast_to(origins, dirs.shape), dirs], 1).astype(np.float32)
+    return scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)

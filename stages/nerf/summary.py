@@ -48,7 +48,7 @@ class NerfSummary(Summary):
     heldout_frames: int
     train_s: float
     rays_per_s: float
-    render_ms: float | None = None
+    render_ms: float | None = None  # one held-out frame through the field, colour and depth
     heldout_psnr: float | None = None
     depth: NerfDepthScores | None = None
     resumed_from: int = 0

@@ -25,6 +25,8 @@ MODEL_FILE = "model.pt"
 TRAIN_LOG_FILE = "train_log.csv"
 LOSS_PLOT_FILE = "loss.png"
 HELDOUT_PLOT_FILE = "heldout.png"
+#: The held-out frames as the field renders them (16-bit RGB PNG, display-encoded).
+HELDOUT_RGB_DIR = "heldout_rgb"
 METRICS_FILE = "metrics.json"
 REFINED_CAMERAS_FILE = "cameras_refined.json"
 
@@ -129,6 +131,17 @@ class NerfView:
         `depth` ({"median_scaled", "sequence_scaled", "unscaled"}); None when absent."""
         path = self.folder / METRICS_FILE
         return json.loads(path.read_text()) if path.is_file() else None
+
+    def heldout_rgb(self, index: int) -> np.ndarray | None:
+        """Held-out frame `index` as the field rendered it after training (H, W, 3) float32 in
+        [0, 1], display-encoded; None when it was not rendered (train.eval_frames)."""
+        path = self.folder / HELDOUT_RGB_DIR / f"{index:06d}.png"
+        if not path.is_file():
+            return None
+        import cv2
+
+        bgr = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        return bgr[..., ::-1].astype(np.float32) / 65535.0
 
     @property
     def heldout(self) -> list[int]:

@@ -59,7 +59,7 @@ class Poses(Stage):
 
     name = "poses"
     needs = ("ingest",)
-    version = 3  # 3: mapper auto asks the incremental mapper only when the global poses are doubtful
+    version = 3  # 3: mapper auto asks the incremental mapper only when the global one is doubtful
     Config = PosesConfig
 
     @classmethod
