@@ -88,7 +88,7 @@ def tiny_config(**train) -> NerfConfig:
     return cfg
 
 
-def tiny_setup(cfg: NerfConfig, n_frames: int = 10):
+def tiny_setup(cfg: NerfConfig, n_frames: int = 10, device: str = "cpu"):
     k = intrinsics()
     poses = tube_poses(n_frames)
     renders = [tube_frame(k, p) for p in poses]
@@ -98,7 +98,7 @@ def tiny_setup(cfg: NerfConfig, n_frames: int = 10):
     box = fit_box(poses, k, (H, W), prior, cfg)
     c2w_s = np.stack([box.c2w_to_scene(p) for p in poses])
     ids = list(range(n_frames))
-    frames = FrameSet(images, masks, c2w_s, k, ids, torch.device("cpu"))
+    frames = FrameSet(images, masks, c2w_s, k, ids, torch.device(device))
     train, held = holdout_split(ids, cfg.train.holdout_every)
     return frames, train, held, prior, box, k, poses, [r[1] for r in renders]
 

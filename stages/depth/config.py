@@ -15,6 +15,11 @@ class DepthConfig(StageConfig):
         description="baked: ray-cast an iso-surface baked once from the field's density (fast); "
         "field: volume-render the trained field at every sample (exact expected depth, slow).",
     )
+    device: Literal["auto", "cpu", "cuda"] = Field(
+        "auto",
+        description="Where the field is evaluated (baking, volume rendering): auto is CUDA when "
+        "torch sees one. Ray casting the baked surfaces runs on the CPU (Embree).",
+    )
     bake_voxels_per_radius: int = Field(
         24, ge=4, le=256, description="Baked surface: grid nodes per lumen radius."
     )

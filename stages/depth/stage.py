@@ -54,7 +54,9 @@ class Depth(Stage):
         poses: PosesView = ctx.input("poses")
         centerline: CenterlineView = ctx.input("centerline")
         nerf: NerfView = ctx.input("nerf")
-        model = nerf.model()
+        from endopipe.stages.nerf.render import pick_device
+
+        model = nerf.model(pick_device(cfg.device))
         prior = centerline.prior()
         k = poses.intrinsics
         if (k.width, k.height) != (ingest.width, ingest.height):

@@ -7,7 +7,6 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 
 from endopipe.pipeline.errors import StageFailed
 from endopipe.stages.mesh.config import MeshConfig
@@ -49,19 +48,13 @@ def fuse_depth(
     return mesh, info
 
 
-def pick_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
-
-
 def nerf_marching_cubes(
     nerf: NerfView, depth: DepthView, poses: PosesView, prior: Any, cfg: MeshConfig
 ) -> tuple[RawMesh, dict[str, float]]:
     """Marching cubes of the trained field's density (04_nerf) in the prior's band, over the
     registered cameras' frustums up to the depth truncation; iso-level calibrated on the field's
     rendered surface unless `cfg.density_level` is set."""
-    from endopipe.stages.nerf.render import surface_density_level
+    from endopipe.stages.nerf.render import pick_device, surface_density_level
 
     trunc = depth_trunc(depth, poses, cfg.depth_trunc, cfg.depth_trunc_percentile, cfg.min_opacity)
     device = pick_device(cfg.device)

@@ -81,6 +81,7 @@ class BakedSurface:
             level,
             spacing=radius / voxels_per_radius,
             band=band,
+            device=model.log_gain.device,  # the field where it lives (a GPU, when there)
         )
         if min_component_radii > 0:
             mesh, _ = drop_small_components(mesh, 0.0, min_component_radii * radius)
@@ -221,7 +222,10 @@ class FarBake:
             radius / settings.voxels_per_radius,
             float(np.prod(hi - lo) / settings.max_nodes) ** (1 / 3),
         )
-        grid = band_density_grid(field_density_fn(model), _Everywhere(), lo, hi, spacing, 1.0)
+        density = field_density_fn(model)
+        grid = band_density_grid(
+            density, _Everywhere(), lo, hi, spacing, 1.0, device=model.log_gain.device
+        )
         fractions = (settings.haze_level, settings.spread_level)
         scenes = []
         for fraction in (*fractions, 1.0):

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from endopipe.pipeline.errors import ConfigError
 from endopipe.stages.camera import Camera, pixel_rays
 from endopipe.stages.nerf.bounds import scene_bounds
 from endopipe.stages.nerf.config import NerfConfig
@@ -37,6 +38,19 @@ def save_model(path: Path, model: NerfModel, meta: dict | None = None) -> None:
     tmp = Path(path).with_suffix(".tmp")
     torch.save(blob, tmp)
     tmp.replace(path)
+
+
+def pick_device(name: str) -> torch.device:
+    """The torch device a setting names: auto is CUDA when torch sees one, else the CPU; cuda
+    without one is one line saying so (not a traceback deep in training)."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(
+            "device cuda: torch sees no CUDA device (a CPU build, or no driver); set the device "
+            "to auto or cpu, or install the CUDA build of torch (make demo TORCH_SPEC=torch)"
+        )
+    return torch.device(name)
 
 
 def load_model(folder: Path | str, device: str | torch.device = "cpu") -> NerfModel:

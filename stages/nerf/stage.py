@@ -25,11 +25,11 @@ from endopipe.stages.nerf.bounds import PriorBounds
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.data import FrameSet, holdout_split
 from endopipe.stages.nerf.pose_refine import record, refinement_wanted
-from endopipe.stages.nerf.render import render_image, save_model
+from endopipe.stages.nerf.render import pick_device, render_image, save_model
 from endopipe.stages.nerf.scene import SceneBox
 from endopipe.stages.nerf.sparse_depth import sparse_depth_targets
 from endopipe.stages.nerf.summary import NerfSummary
-from endopipe.stages.nerf.train import CHECKPOINT, Trainer, auto_threads, pick_device
+from endopipe.stages.nerf.train import CHECKPOINT, Trainer, auto_threads
 from endopipe.stages.nerf.view import HELDOUT_RGB_DIR, MODEL_FILE, NerfView
 
 

@@ -67,12 +67,6 @@ def auto_threads(window_s: float = 0.5) -> int:
     return int(min(cores, max(1, round(cores - max(others, 0.0)))))
 
 
-def pick_device(name: str) -> torch.device:
-    if name == "cuda" or (name == "auto" and torch.cuda.is_available()):
-        return torch.device("cuda")
-    return torch.device("cpu")
-
-
 def initial_gain(frames: FrameSet, train: list[int], pb: PriorBounds, gamma: float, gen) -> float:
     """Light gain so that a mid-grey albedo at the prior's wall matches the median pixel."""
     sampler = RaySampler(frames, train, 4096, 2, 0.0, gen)
