@@ -358,6 +358,17 @@ def test_stage_resumes_after_a_kill(tmp_path, monkeypatch):
     assert summary["depth"]["median_scaled"]["abs_rel"] < 1.0
     rows = (out / "train_log.csv").read_text().splitlines()
     assert rows[-1].startswith("30,")
+    assert not summary["budget_stopped"] and summary["planned_steps"] == 30
+    # the held-out renders are kept for the depth stage (PSNR / SSIM without a second render)
+    view = Nerf.view(out)
+    assert view.heldout and all(view.heldout_rgb(i).shape == (H, W, 3) for i in view.heldout)
+
+    # The time budget ends training only past it, and says at which step.
+    budget = [*sets, "nerf.train.steps=100000", "nerf.train.time_budget_s=1"]
+    configs = load_config(stages, sets=budget, use_default_file=False)
+    record = pipe.run(case_dir, configs, quiet=True)
+    summary = record.stages[-1].summary
+    assert summary["budget_stopped"] and 0 < summary["steps"] < summary["planned_steps"], summary
 
 
 # --- accuracy (slow) ---------------------------------------------------------------------------

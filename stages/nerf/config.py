@@ -326,10 +326,12 @@ class TrainConfig(_Section):
 
     steps: int = Field(1500, ge=1, description="Optimisation steps (at most).")
     time_budget_s: float | None = Field(
-        240.0,
+        600.0,
         gt=0,
-        description="Optional budget of training time (s): the schedules run on max(step / "
-        "steps, time / budget) and training ends when either is done (null: all steps).",
+        description="A last resort against a slow or loaded machine (s): past it the schedules "
+        "run on max(step / steps, time / budget) and training ends when either is done, so the "
+        "result then depends on the machine; the log, summary and report say at which step "
+        "(null: all steps, always).",
     )
     batch_rays: int = Field(1024, ge=16, description="Rays per step.")
     lr_grid: float = Field(0.02, gt=0, description="Learning rate of grid / hash parameters.")

@@ -230,6 +230,13 @@ class Nerf(Stage):
             ctx.log(f"resuming from checkpoint at step {start}")
         with ctx.progress("nerf", total=cfg.train.steps) as advance:
             trainer.fit(advance)
+        budget_stopped = trainer.step_i < cfg.train.steps
+        if budget_stopped:
+            ctx.log(
+                f"stopped by nerf.train.time_budget_s ({cfg.train.time_budget_s:g} s) at step "
+                f"{trainer.step_i} of {cfg.train.steps}: the schedule ran on time, so this "
+                "result depends on the machine's speed and load"
+            )
         trainer.save_checkpoint()  # a crash while evaluating resumes here, not steps back
         held_refined = trainer.refine_heldout([pos[i] for i in held_ids])
         c2w_used = trainer.world_poses(c2w)  # refined (world frame) when refinement ran
@@ -254,6 +261,8 @@ class Nerf(Stage):
         write_json(ctx.out / "metrics.json", evaluation)
         return NerfSummary(
             steps=trainer.step_i,
+            planned_steps=cfg.train.steps,
+            budget_stopped=budget_stopped,
             train_frames=len(train_ids),
             heldout_frames=len(held_ids),
             train_s=round(trainer.elapsed, 2),

@@ -43,7 +43,9 @@ class NerfDepthScores(BaseModel):
 
 
 class NerfSummary(Summary):
-    steps: int
+    steps: int  # steps trained
+    planned_steps: int | None = None  # train.steps
+    budget_stopped: bool = False  # the time budget ended training before planned_steps
     train_frames: int
     heldout_frames: int
     train_s: float
