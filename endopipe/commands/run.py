@@ -36,6 +36,7 @@ def run_case(
     run made, which then continues where it is, with its last run's settings) through `pipe`."""
     from endopipe.commands.resume import reopen_case
     from endopipe.pipeline.config import RUN_CONFIG, load_config
+    from endopipe.pipeline.errors import ConfigError
 
     for stage in (from_stage, until):
         if stage is not None:
@@ -44,7 +45,16 @@ def run_case(
         # Continuing a case continues its last run's settings; --config / --set layer on them.
         recorded = input_path / RUN_CONFIG
         config_files = [str(recorded)] * recorded.is_file() + list(config_files)
-    configs = load_config(pipe.stages, config_files, sets)
+    try:
+        configs = load_config(pipe.stages, config_files, sets)
+    except ConfigError as e:
+        if not (is_case_dir(input_path) and (input_path / RUN_CONFIG).is_file()):
+            raise
+        raise ConfigError(
+            f"{e}; the case's last-run settings no longer load (another version of endopipe "
+            f"wrote them): remove {input_path / RUN_CONFIG} to continue with the defaults and "
+            "your --config / --set"
+        ) from None
     if is_case_dir(input_path):
         case_dir = reopen_case(
             pipe,

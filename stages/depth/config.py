@@ -41,9 +41,9 @@ class DepthConfig(StageConfig):
         gt=0,
         description="A ray the field puts on no one surface gets no depth (0, unknown): the middle "
         "half of its rendered weight spans more than this fraction of its depth (haze in front "
-        "of the wall, a ray grazing a fold's rim); with far: baked, its density's climb "
-        "(far_haze_level). Applies to rays the baked surface misses, and to all with renderer "
-        "field. None: any spread.",
+        "of the wall, a ray grazing a fold's rim); with far: baked, of the weight its density "
+        "ramp gives (far_levels). Applies to rays the baked surface misses, and to all with "
+        "renderer field. None: any spread.",
     )
     bake_min_component: float = Field(
         0.5,
@@ -65,26 +65,19 @@ class DepthConfig(StageConfig):
         "instead of volume-rendering a fifth of the rays, 500 ms a map); field: volume-render "
         "the field on them (the exact expected depth and weight spread).",
     )
-    far_voxels_per_radius: float = Field(
-        8.0, gt=0, description="Far bake: grid nodes per lumen radius (coarser past far_max_nodes)."
-    )
     far_max_nodes: int = Field(
-        30_000_000, ge=1000, description="Far bake: at most this many grid nodes (memory)."
+        16_000_000,
+        ge=1000,
+        description="Far bake: at most this many grid nodes; it samples the field at the field's "
+        "own resolution (its grid's nodes) up to this (memory, baking time).",
     )
-    far_haze_level: float = Field(
-        0.1,
-        gt=0,
-        lt=1,
-        description="Far bake's spread: the density's climb is measured from this fraction of "
-        "the surface level ...",
-    )
-    far_spread_level: float = Field(
-        0.5,
-        gt=0,
-        le=1,
-        description="... to this fraction; over more than max_spread of the depth: no depth. On "
-        "C3VD it flags 8.4% of the rays the fine bake misses where the field's weight spread "
-        "flags 7.0% (0.71 of them the same rays, 0.85 of the field's found).",
+    far_levels: list[float] = Field(
+        [0.1, 0.5],
+        min_length=1,
+        description="Far bake: the fractions of the surface level (each under 1) whose "
+        "iso-surfaces, with the surface's, outline each ray's density ramp: its weight's "
+        "quartiles give the depth and the spread (max_spread). A ray whose ramp stops under "
+        "the second level is volume-rendered by the field.",
     )
     preview: bool = Field(True, description="Write preview.mp4 (RGB | depth | error).")
     preview_fps: int = Field(10, ge=1, description="Frame rate of preview.mp4.")

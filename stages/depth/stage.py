@@ -158,11 +158,8 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, ner
     far = None
     if cfg.far == "baked":
         far = FarSettings(
-            voxels_per_radius=cfg.far_voxels_per_radius,
-            reach_radii=model.cfg.sampling.far_radii,
             max_nodes=cfg.far_max_nodes,
-            haze_level=cfg.far_haze_level,
-            spread_level=cfg.far_spread_level,
+            levels=tuple(cfg.far_levels),
         )
     baked = BakedSurface.bake(
         model,

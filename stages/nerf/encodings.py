@@ -25,14 +25,25 @@ class _GatherInterp(torch.autograd.Function):
             idx.reshape(-1), table, offsets, mode="sum", per_sample_weights=w.reshape(-1)
         )
         ctx.save_for_backward(idx, w)
-        ctx.rows = table.shape[0]
+        ctx.table = table
         return out
 
     @staticmethod
     def backward(ctx, grad: torch.Tensor):  # type: ignore[override]
         idx, w = ctx.saved_tensors
+        table: torch.Tensor = ctx.table
         grad = grad.contiguous()
-        g = torch.zeros(ctx.rows, grad.shape[1], dtype=grad.dtype, device=grad.device)
+        # A table is a leaf parameter read several times a step (the fine pass, normals, the
+        # SfM-point and neighbour rays): every read scatters into its one .grad instead of a
+        # dense gradient of its own that autograd then adds up (at 384 nodes, allocating and
+        # adding those cost a tenth of a step).
+        direct = table.is_leaf and table.requires_grad
+        if direct:
+            if table.grad is None:
+                table.grad = torch.zeros_like(table)
+            g = table.grad
+        else:
+            g = torch.zeros_like(table, dtype=grad.dtype)
         # One corner at a time: contiguous products, no (N, K, C) temporary.
         for k in range(idx.shape[1]):
             src = grad * w[:, k : k + 1]
@@ -40,7 +51,7 @@ class _GatherInterp(torch.autograd.Function):
                 g.index_add_(0, idx[:, k], src)
             else:  # on a CPU the accumulating index_put_ is about twice as fast as index_add_
                 g.index_put_((idx[:, k],), src, accumulate=True)
-        return g, None, None
+        return (None if direct else g), None, None
 
 
 def gather_interp(table: torch.Tensor, idx: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
@@ -68,6 +79,7 @@ class VMGrid(nn.Module):
         )
         self.lines = nn.Parameter(init_std * torch.randn(self._line_rows(), channels, generator=g))
         self._consts: dict[str, tuple[torch.Tensor, ...]] = {}
+        self._channels_first: tuple[tuple, list[torch.Tensor]] | None = None
 
     def _plane_rows(self) -> int:
         return sum(self.res[a] * self.res[b] for a, b, _ in self.PAIRS)
@@ -124,19 +136,42 @@ class VMGrid(nn.Module):
         n, r = x.shape[0], self.channels
         out = x.new_empty(n, 3, r)
         kw = {"align_corners": True, "padding_mode": "border"}
-        poff, loff = 0, 0
+        tables = self._tables_channels_first()
         for m, (a, b, c) in enumerate(self.PAIRS):
-            ra, rb, rc = self.res[a], self.res[b], self.res[c]
-            plane = self.planes[poff : poff + ra * rb].view(1, rb, ra, r).permute(0, 3, 1, 2)
-            line = self.lines[loff : loff + rc].view(1, rc, 1, r).permute(0, 3, 1, 2)
             uv = torch.stack([x[:, a], x[:, b]], -1).view(1, n, 1, 2)
             w = torch.stack([torch.zeros_like(x[:, c]), x[:, c]], -1).view(1, n, 1, 2)
-            pv = F.grid_sample(plane.contiguous(), uv, **kw).view(r, n)
-            lv = F.grid_sample(line.contiguous(), w, **kw).view(r, n)
+            pv = F.grid_sample(tables[2 * m], uv, **kw).view(r, n)
+            lv = F.grid_sample(tables[2 * m + 1], w, **kw).view(r, n)
             out[:, m] = (pv * lv).T
-            poff += ra * rb
-            loff += rc
         return out.view(n, 3 * r)
+
+    def parameters_changed(self) -> None:
+        """Drop the channels-first copies (an optimiser's fused step updates the parameters
+        in place without bumping their version: the trainer calls this after each step)."""
+        self._channels_first = None
+
+    def _tables_channels_first(self) -> list[torch.Tensor]:
+        """Each plane and line as grid_sample reads it (1, R, H, W), copied once per change of
+        the parameters, not once per call: a training step samples the grid without gradients
+        several times (the sampler's passes), and at 384 nodes a copy costs more than a pass."""
+        key = (
+            self.planes._version,
+            self.lines._version,
+            self.planes.data_ptr(),
+            self.lines.data_ptr(),
+        )
+        if self._channels_first is None or self._channels_first[0] != key:
+            r, tables, poff, loff = self.channels, [], 0, 0
+            for a, b, c in self.PAIRS:
+                ra, rb, rc = self.res[a], self.res[b], self.res[c]
+                plane = self.planes[poff : poff + ra * rb].view(1, rb, ra, r)
+                line = self.lines[loff : loff + rc].view(1, rc, 1, r)
+                tables.append(plane.permute(0, 3, 1, 2).detach().contiguous())
+                tables.append(line.permute(0, 3, 1, 2).detach().contiguous())
+                poff += ra * rb
+                loff += rc
+            self._channels_first = (key, tables)
+        return self._channels_first[1]
 
     @torch.no_grad()
     def upsampled(self, res: tuple[int, int, int]) -> VMGrid:

@@ -91,6 +91,19 @@ class SceneBox:
         y = np.where(x > b, b + k * np.log1p(np.maximum(x - b, 0) / k), x)
         return np.where(x < a, a - k * np.log1p(np.maximum(a - x, 0) / k), y)
 
+    def unwarp_np(self, y: np.ndarray) -> np.ndarray:
+        """The inverse of `warp_np`."""
+        a, b, k = self.core_lo, self.core_hi, self.soft
+        y = np.asarray(y, np.float64)
+        x = np.where(y > b, b + k * np.expm1(np.maximum(y - b, 0) / k), y)
+        return np.where(y < a, a - k * np.expm1(np.maximum(a - y, 0) / k), x)
+
+    def grid_to_world_np(self, g: np.ndarray) -> np.ndarray:
+        """[-1, 1]^3 grid coordinates (the field's, `to_grid`) -> world points."""
+        glo, ghi = self.warp_np(self.lo), self.warp_np(self.hi)
+        y = (np.asarray(g, np.float64) + 1.0) * (ghi - glo) / 2.0 + glo
+        return self.scene_to_world_np(self.unwarp_np(y))
+
     def cell_scene(self, longest: int) -> float:
         """Edge of a grid cell inside the core, in scene units, for `longest` nodes."""
         return float(self.extent.max() / max(longest - 1, 1))

@@ -140,7 +140,14 @@ class Trainer:
             self.opt = torch.optim.Adam(groups, betas=(0.9, 0.99), fused=True)
         except (RuntimeError, TypeError, ValueError):
             self.opt = torch.optim.Adam(groups, betas=(0.9, 0.99))
+        self.opt.register_step_post_hook(lambda *_: self._parameters_changed())
         self._set_lr()
+
+    def _parameters_changed(self) -> None:
+        """Tell the grids that cache a copy of their parameters that these moved."""
+        for module in self.model.modules():
+            if hasattr(module, "parameters_changed"):
+                module.parameters_changed()
 
     @property
     def progress(self) -> float:
