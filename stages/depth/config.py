@@ -72,12 +72,19 @@ class DepthConfig(StageConfig):
         "own resolution (its grid's nodes) up to this (memory, baking time).",
     )
     far_levels: list[float] = Field(
-        [0.1, 0.5],
+        [0.1, 0.25, 0.5],
         min_length=1,
         description="Far bake: the fractions of the surface level (each under 1) whose "
         "iso-surfaces, with the surface's, outline each ray's density ramp: its weight's "
-        "quartiles give the depth and the spread (max_spread). A ray whose ramp stops under "
-        "the second level is volume-rendered by the field.",
+        "quartiles give the depth and the spread (max_spread).",
+    )
+    far_faint: Literal["unknown", "field"] = Field(
+        "unknown",
+        description="Far bake: a ray whose density stays under the second level (faint haze, or "
+        "the thick faint wall at the end of a long lumen): unknown: no depth; field: "
+        "volume-render it. The field finds a surface on 3% of them on the laparoscopy video "
+        "(a tenth of its pixels: 167 ms a map instead of 30) and on 85% on the bench colon "
+        "(0.3% of its pixels; coverage 0.996 instead of 0.993, Chamfer 4.40% instead of 4.36%).",
     )
     preview: bool = Field(True, description="Write preview.mp4 (RGB | depth | error).")
     preview_fps: int = Field(10, ge=1, description="Frame rate of preview.mp4.")

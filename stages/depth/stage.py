@@ -165,6 +165,7 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, ner
         far = FarSettings(
             max_nodes=cfg.far_max_nodes,
             levels=tuple(cfg.far_levels),
+            faint=cfg.far_faint,
         )
     baked = BakedSurface.bake(
         model,
