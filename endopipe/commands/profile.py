@@ -116,10 +116,10 @@ def accuracy_note(pipe: Pipeline, case_dir: Path) -> str:
         return ""
     depth: DepthSummary = pipe.view(case_dir, "depth").summary
     parts = []
-    if depth.affine_invariant is not None:
-        a = depth.affine_invariant
+    a = depth.affine_invariant
+    if a is not None and a.spearman is not None and a.abs_rel is not None:
         parts.append(f"Spearman {a.spearman:.3f}, SSI-AbsRel {a.abs_rel:.3f}")
-    elif depth.median_scaled is not None:
+    elif depth.median_scaled is not None and depth.median_scaled.abs_rel is not None:
         parts.append(f"AbsRel {depth.median_scaled.abs_rel:.4f}")
     if depth.coverage is not None:
         parts.append(f"coverage {depth.coverage:.3f}")

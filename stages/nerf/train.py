@@ -306,12 +306,14 @@ class Trainer:
         self.opt.step()
         self.step_i += 1
         self._set_lr()
-        vals = {k: float(v.detach()) for k, v in terms.items()}
-        vals["loss"] = float(loss.detach())
+        # Tensors, not floats: reading a value waits for the device, so on a GPU the log reads
+        # them once every log_every steps and the steps between queue without waiting.
+        vals = {k: v.detach() for k, v in terms.items()}
+        vals["loss"] = loss.detach()
         if self.correction is not None:
             delta = self.correction.effective().detach()[self._train_t]
-            vals["pose_deg"] = float(delta[:, :3].norm(dim=-1).mean()) * 180.0 / math.pi
-            vals["pose_move"] = float(delta[:, 3:].norm(dim=-1).mean()) * self.box.scale
+            vals["pose_deg"] = delta[:, :3].norm(dim=-1).mean() * (180.0 / math.pi)
+            vals["pose_move"] = delta[:, 3:].norm(dim=-1).mean() * self.box.scale
         return vals
 
     def _sparse_term(self) -> torch.Tensor:
@@ -395,21 +397,21 @@ class Trainer:
         if self.step_i and advance is not None:
             advance(self.step_i, info="resumed")
         window_rays, window_t = 0, 0.0
-        acc: dict[str, list[float]] = {}
+        acc: dict[str, list[torch.Tensor]] = {}
         while self.step_i < tc.steps and self.progress < 1.0:
             t0 = time.perf_counter()
             vals = self.step()
-            dt = time.perf_counter() - t0
-            self.elapsed += dt
-            window_rays += tc.batch_rays
-            window_t += dt
             for k, v in vals.items():
                 acc.setdefault(k, []).append(v)
-            if not math.isfinite(vals["loss"]):
-                raise FloatingPointError(f"nerf loss is {vals['loss']} at step {self.step_i}")
+            window_rays += tc.batch_rays
             done = self.step_i >= tc.steps or self.progress >= 1.0
-            if self.step_i % tc.log_every == 0 or done:
-                row = {k: float(np.mean(v)) for k, v in acc.items()}
+            logging = self.step_i % tc.log_every == 0 or done
+            if logging:
+                row = self._window_means(acc)  # waits for the queued steps
+            dt = time.perf_counter() - t0
+            self.elapsed += dt
+            window_t += dt
+            if logging:
                 row.update(
                     step=self.step_i,
                     psnr=losses.psnr(row.get("photo", 0.0)),
@@ -429,6 +431,16 @@ class Trainer:
                 advance(1)
             if self.step_i % tc.checkpoint_every == 0 and not done:
                 self.save_checkpoint()
+
+    def _window_means(self, acc: dict[str, list[torch.Tensor]]) -> dict[str, float]:
+        """The logged window's mean of each term; a loss gone non-finite stops training with
+        the step where it did."""
+        loss = torch.stack(acc["loss"]).cpu()
+        finite = torch.isfinite(loss)
+        if not bool(finite.all()):
+            bad = self.step_i - len(loss) + 1 + int((~finite).nonzero()[0])
+            raise FloatingPointError(f"nerf loss is {float(loss[~finite][0])} at step {bad}")
+        return {k: float(torch.stack(v).float().mean()) for k, v in acc.items()}
 
     def write_log(self, path: Path) -> None:
         with open(path, "w", newline="") as fh:
