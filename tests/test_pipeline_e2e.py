@@ -103,3 +103,20 @@ def test_deleted_file_makes_stage_stale(first_run: tuple[Path, float]) -> None:
     rerun(case)
     assert statuses(case)["ingest"] == "ran"
     assert (case / "01_ingest" / "masks" / "000003.png").is_file()
+
+
+def test_depth_maps_stand_when_the_ground_truth_is_gone(first_run: tuple[Path, float]) -> None:
+    """A case moved to another machine, or a data set no longer mounted: the depth stage still
+    writes its maps, without scores, instead of failing after rendering them all."""
+    case, _ = first_run
+    gt = Path(last_record(case)["input"]).parent / "gt"
+    hidden = gt.with_name("gt_hidden")
+    gt.rename(hidden)
+    try:
+        rerun(case, "--from", "depth", "--until", "depth")
+    finally:
+        hidden.rename(gt)
+    assert statuses(case)["depth"] == "ran"
+    summary = json.loads((case / "05_depth" / "manifest.json").read_text())["summary"]
+    assert summary["frames"] == len(list((case / "05_depth" / "depth").glob("*.npy")))
+    assert summary["median_scaled"] is None and summary["gt_kind"] is None
