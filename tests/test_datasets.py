@@ -49,17 +49,23 @@ def true_poses(n: int = N, seed: int = 0) -> list[np.ndarray]:
     return out
 
 
-def write_hamlyn(seq: Path, n: int = N, seed: int = 0) -> Path:
-    """rectifiedNN/image01/*.jpg, image02/*.jpg, depth01/*.png (uint16 mm), intrinsics.txt 3x4."""
+def write_hamlyn(seq: Path, n: int = N, seed: int = 0, layout: str = "rectified") -> Path:
+    """rectifiedNN/image01/*.jpg, image02/*.jpg, depth01/*.png (uint16 mm), intrinsics.txt 3x4;
+    layout "edm": color/*.jpg, depth/*.png, intrinsics.txt (the Endo-Depth-and-Motion release)."""
     frames = textured_frames(n, W, H, seed=seed)
-    for sub in ("image01", "image02", "depth01"):
-        (seq / sub).mkdir(parents=True, exist_ok=True)
+    left, right, depth_dir = ("image01", "image02", "depth01")
+    if layout == "edm":
+        left, right, depth_dir = ("color", None, "depth")
+    for sub in (left, right, depth_dir):
+        if sub:
+            (seq / sub).mkdir(parents=True, exist_ok=True)
     for i, rgb in enumerate(frames):
         bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
-        cv2.imwrite(str(seq / "image01" / f"{i:010d}.jpg"), bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])
-        cv2.imwrite(str(seq / "image02" / f"{i:010d}.jpg"), np.roll(bgr, 3, axis=1))
+        cv2.imwrite(str(seq / left / f"{i:010d}.jpg"), bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])
+        if right:
+            cv2.imwrite(str(seq / right / f"{i:010d}.jpg"), np.roll(bgr, 3, axis=1))
         depth = np.round(true_depth_mm(i)).astype(np.uint16)
-        cv2.imwrite(str(seq / "depth01" / f"{i:010d}.png"), depth)
+        cv2.imwrite(str(seq / depth_dir / f"{i:010d}.png"), depth)
     (seq / "intrinsics.txt").write_text(
         "100.5 0 63.25 0\n0 101.0 47.75 0\n0 0 1 0\n"  # a 3x4 projection, as released
     )
@@ -131,8 +137,9 @@ def assert_poses_close(got: list[np.ndarray], want: list[np.ndarray], atol: floa
 # ---------------------------------------------------------------- Hamlyn
 
 
-def test_hamlyn_reader_frames_intrinsics_and_pseudo_depth(tmp_path: Path) -> None:
-    seq = write_hamlyn(tmp_path / "rectified01")
+@pytest.mark.parametrize("layout", ["rectified", "edm"])
+def test_hamlyn_reader_frames_intrinsics_and_pseudo_depth(tmp_path: Path, layout: str) -> None:
+    seq = write_hamlyn(tmp_path / "rectified01", layout=layout)
     source = open_input(seq)
     assert source.kind == "hamlyn" and source.frame_count() == N
     frames = list(source.frames())
@@ -155,6 +162,14 @@ def test_hamlyn_reader_frames_intrinsics_and_pseudo_depth(tmp_path: Path) -> Non
         assert d[0, 0] == 0  # invalid stays 0
     assert gt.depth(N) is None
     assert open_ground_truth(source.gt_dir).kind == "pseudo"  # what case.json's gt_dir gives
+
+
+def test_a_folder_of_color_images_alone_is_not_hamlyn(tmp_path: Path) -> None:
+    """color/ is a common folder name: without intrinsics.txt it is a folder of images."""
+    seq = write_hamlyn(tmp_path / "rectified05", n=3, layout="edm")
+    (seq / "intrinsics.txt").unlink()
+    assert detect_format(seq) != "hamlyn"
+    assert detect_format(seq / "color") == "images"
 
 
 def test_hamlyn_intrinsics_3x3_and_padding_mismatch(tmp_path: Path) -> None:
@@ -462,6 +477,7 @@ def test_data_set_sequences_are_aligned_and_evaluated_like_case_folders(
 def test_detection_finds_every_case_and_names_them(tmp_path: Path) -> None:
     root = tmp_path / "data"
     write_hamlyn(root / "hamlyn" / "rectified01", n=3)
+    write_hamlyn(root / "hamlyn" / "rectified02", n=3, layout="edm")
     write_c3vd(root / "c3vd" / "cecum_t1_a", n=3)
     write_simcol(root / "SimCol3D" / "SyntheticColon_I", n=3)
     write_simcol(root / "SimCol3D" / "SyntheticColon_II", n=3)
@@ -479,6 +495,7 @@ def test_detection_finds_every_case_and_names_them(tmp_path: Path) -> None:
         "c3vd__cecum_t1_a": "c3vd",
         "cases__colon01": "case",
         "hamlyn__rectified01": "hamlyn",
+        "hamlyn__rectified02": "hamlyn",
         "SimCol3D__SyntheticColon_I__Frames_S1": "simcol3d",
         "SimCol3D__SyntheticColon_II__Frames_S1": "simcol3d",
         "stills": "images",

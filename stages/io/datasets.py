@@ -14,7 +14,7 @@ from types import ModuleType
 from endopipe.pipeline.errors import InputError
 from endopipe.stages.camera import Camera
 from endopipe.stages.io import c3vd, c3vd_preview, hamlyn, simcol3d
-from endopipe.stages.io.ground_truth import GroundTruthSource, holds_case_truth, open_case_truth
+from endopipe.stages.io.ground_truth import GroundTruthSource, open_case_truth
 from endopipe.stages.io.input_source import InputSource
 
 #: Data set readers, in detection order. Each module has NAME, LAYOUT, GT_KIND,
@@ -53,5 +53,6 @@ def open_ground_truth(gt_dir: Path | str) -> GroundTruthSource:
     """The ground truth behind a `gt_dir` (case.json / frames.json), whatever its format: the
     one door every stage, command and report goes through (InputError when none is there)."""
     gt_dir = Path(gt_dir)
-    name = None if holds_case_truth(gt_dir) else detect_dataset(gt_dir)
+    # A data set's layout first: a Hamlyn sequence's depth/ is not an endopipe case's gt/.
+    name = detect_dataset(gt_dir)
     return open_case_truth(gt_dir) if name is None else READERS[name].ground_truth(gt_dir)

@@ -1,11 +1,16 @@
-"""Hamlyn, rectified release: read in place, nothing copied.
+"""Hamlyn, rectified: read in place, nothing copied, in either layout users download.
 
 ```
-rectifiedNN/
+rectifiedNN/                   the rectified release
   image01/0000000000.jpg ...   left images (endopipe's frames)
   image02/0000000000.jpg ...   right images (unused)
   depth01/0000000000.png ...   uint16 depth in mm from stereo: PSEUDO ground truth
   intrinsics.txt               3x3 (or 3x4 projection) matrix of the rectified left camera
+
+rectifiedNN/                   the release with Endo-Depth-and-Motion
+  color/0000000000.jpg ...     left images
+  depth/0000000000.png ...     uint16 depth in mm from stereo
+  intrinsics.txt
 ```
 
 No poses. The depth comes from stereo matching, not a measurement, so it is labelled
@@ -25,13 +30,29 @@ from endopipe.stages.io.images import ImageListSource, list_images
 from endopipe.stages.io.intrinsics import read_camera_matrix
 
 NAME = "hamlyn"
-LAYOUT = "rectifiedNN/ with image01/*.jpg, depth01/*.png (mm), intrinsics.txt"
+LAYOUT = (
+    "rectifiedNN/ with image01/*.jpg, depth01/*.png (mm), intrinsics.txt; or color/*.jpg, "
+    "depth/*.png (mm), intrinsics.txt"
+)
 GT_KIND = "pseudo"
+#: (left images, depth) folders of each layout, in detection order. A folder of images named
+#: color/ is common, so that layout also needs its intrinsics.txt to be taken for Hamlyn.
+FOLDERS = (("image01", "depth01"), ("color", "depth"))
+
+
+def folders(path: Path) -> tuple[str, str] | None:
+    """The (images, depth) folder names of the layout `path` has, or None."""
+    for images, depth in FOLDERS:
+        needs_intrinsics = images == "color"
+        if needs_intrinsics and not (path / "intrinsics.txt").is_file():
+            continue
+        if (path / images).is_dir() and list_images(path / images):
+            return images, depth
+    return None
 
 
 def is_sequence(path: Path) -> bool:
-    left = path / "image01"
-    return path.is_dir() and left.is_dir() and bool(list_images(left))
+    return Path(path).is_dir() and folders(Path(path)) is not None
 
 
 def frame_number(path: Path) -> int | None:
@@ -46,15 +67,17 @@ def read_intrinsics(seq: Path, first_frame: Path) -> Camera | None:
 
 
 class HamlynGroundTruth(PerFrameGroundTruth):
-    """depth01/ (uint16 mm, stereo-derived: pseudo ground truth) matched to image01/ by number."""
+    """depth01/ or depth/ (uint16 mm, stereo-derived: pseudo ground truth) matched to the left
+    images by number."""
 
     dataset = NAME
     kind = GT_KIND
     title = "Hamlyn"
 
     def __init__(self, seq: Path) -> None:
-        self.frames = list_images(Path(seq) / "image01")
-        depth_dir = Path(seq) / "depth01"
+        images, depth = folders(Path(seq)) or FOLDERS[0]
+        self.frames = list_images(Path(seq) / images)
+        depth_dir = Path(seq) / depth
         files = list_images(depth_dir) if depth_dir.is_dir() else []
         super().__init__(seq, depth_of_frames(self.frames, files), len(files))
 
@@ -78,11 +101,13 @@ class HamlynSource(ImageListSource):
 
 def open_sequence(path: Path, intrinsics: Camera | None = None) -> HamlynSource:
     path = Path(path)
-    files = list_images(path / "image01") if (path / "image01").is_dir() else []
-    if not files:
+    layout = folders(path)
+    if layout is None:
         raise InputError(f"{path} is not a Hamlyn rectified sequence ({LAYOUT})")
+    images, depth = layout
+    files = list_images(path / images)
     intrinsics = intrinsics or read_intrinsics(path, files[0])
-    gt_dir = path if (path / "depth01").is_dir() else None
+    gt_dir = path if (path / depth).is_dir() else None
     return HamlynSource(path, files, intrinsics, gt_dir)
 
 
