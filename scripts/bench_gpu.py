@@ -24,6 +24,7 @@ from rich.console import Console
 from endopipe.cli import build_pipeline
 from endopipe.commands.profile import ProfileRow, profile_rows, profile_table
 from endopipe.pipeline.config import load_config
+from endopipe.pipeline.runner import Pipeline
 from endopipe.stages.nerf.summary import NerfSummary
 
 STAGES = ("nerf", "depth")
@@ -35,9 +36,10 @@ def device_name() -> str:
     return f"CPU ({platform.processor() or platform.machine()}), torch {torch.__version__}"
 
 
-def run_case(case_dir: Path, configs: dict, renderer: str, console: Console) -> list[ProfileRow]:
+def run_case(
+    pipe: Pipeline, case_dir: Path, configs: dict, renderer: str, console: Console
+) -> list[ProfileRow]:
     """NeRF and depth from nothing (renderer `renderer`), then the rows of those two stages."""
-    pipe = build_pipeline()
     configs = dict(configs)
     configs["depth"] = configs["depth"].model_copy(update={"renderer": renderer})
     t0 = time.perf_counter()
@@ -70,7 +72,7 @@ def main() -> None:
     for case_dir in args.cases:
         for renderer in args.renderers or ["baked"]:
             try:
-                rows += run_case(case_dir, configs, renderer, console)
+                rows += run_case(pipe, case_dir, configs, renderer, console)
             except Exception as e:  # a benchmark reports a failed variant and goes on
                 rows.append(ProfileRow(case=case_dir.name, stage=renderer, note=f"failed: {e}"))
             console.print(profile_table(rows))

@@ -14,7 +14,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from endopipe.pipeline.errors import InputError
 from endopipe.pipeline.stage import Stage, StageContext, write_json
 from endopipe.stages.camera import lens_valid_mask
 from endopipe.stages.centerline.view import CenterlineView
@@ -93,11 +92,7 @@ class Depth(Stage):
                     rgbs[i] = out["rgb"]
                 advance(info=f"{1000 * times[-1]:.0f} ms/frame")
         png_scale = write_depth_pngs(ctx.out / DEPTH_DIR, depths)
-        try:
-            gt = ingest.ground_truth()
-        except InputError as e:  # moved or unmounted: the maps stand without their scores
-            ctx.log(f"ground truth ignored: {e}")
-            gt = None
+        gt = ingest.ground_truth_for_scores(ctx.log)
         gt_depths = ground_truth_depths(gt, ingest, list(depths))
         metrics = evaluate(gt, ingest, depths, gt_depths, rgbs, principal=(k.cx, k.cy))
         write_json(ctx.out / METRICS_FILE, metrics)

@@ -7,6 +7,7 @@ stage writes.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import cached_property
 from pathlib import Path
 
@@ -14,6 +15,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, Field
 
+from endopipe.pipeline.errors import InputError
 from endopipe.pipeline.stage import read_summary
 from endopipe.stages.camera import Camera
 from endopipe.stages.ingest.summary import IngestSummary
@@ -154,3 +156,12 @@ class IngestView:
     def ground_truth(self) -> GroundTruthSource | None:
         """The input's ground truth (any format `open_ground_truth` reads), or None."""
         return open_ground_truth(self.gt_dir) if self.gt_dir is not None else None
+
+    def ground_truth_for_scores(self, log: Callable[[str], None]) -> GroundTruthSource | None:
+        """The ground truth where it only scores a stage's output: one that can no longer be
+        read (the case moved, the data set unmounted) is logged and ignored, not fatal."""
+        try:
+            return self.ground_truth()
+        except InputError as e:
+            log(f"ground truth ignored: {e}")
+            return None

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from endopipe.pipeline.errors import EndopipeError, InputError
+from endopipe.pipeline.errors import EndopipeError
 from endopipe.pipeline.stage import Stage, StageContext, write_json
 from endopipe.stages.camera import Camera, lens_valid_mask, pixel_rays
 from endopipe.stages.io.ground_truth import depth_of_frame
@@ -282,11 +282,7 @@ class Nerf(Stage):
 def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) -> dict:
     """Render the held-out frames: PSNR on usable pixels, depth metrics against ground truth."""
     held = held_ids[: cfg.train.eval_frames] if cfg.train.eval_frames else held_ids
-    try:
-        gt = ingest.ground_truth()
-    except InputError as e:
-        ctx.log(f"ground truth ignored: {e}")  # it only evaluates the NeRF: not fatal here
-        gt = None
+    gt = ingest.ground_truth_for_scores(ctx.log)
     fov = ingest.fov()
     lens_valid = lens_valid_mask(k)
     pos = {i: p for p, i in enumerate(ids)}
