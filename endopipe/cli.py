@@ -229,8 +229,19 @@ def synth(
     vignetting: Annotated[
         float, typer.Option(help="Corners get 1 - S of the centre's light (linear); 0 = off.")
     ] = 0.0,
+    step_mm: Annotated[
+        float, typer.Option(help="Camera travel per frame, mm (a withdrawal at 25 fps: 0.3).")
+    ] = 1.0,
+    pauses: Annotated[int, typer.Option(help="Times the camera stands still.")] = 0,
+    pause_frames: Annotated[int, typer.Option(help="Frames each pause lasts.")] = 25,
+    blurred: Annotated[float, typer.Option(help="Fraction of frames with motion blur.")] = 0.0,
+    washed_out: Annotated[
+        float, typer.Option(help="Fraction of frames washed out by the light.")
+    ] = 0.0,
+    fps: Annotated[int, typer.Option(help="Frame rate of video.mp4.")] = 15,
 ) -> None:
-    """Write a synthetic lumen case with exact ground truth (depth, poses, mesh, speculars)."""
+    """Write a synthetic lumen case with exact ground truth (depth, poses, mesh, speculars);
+    a long recording with pauses and spoiled frames (listed in gt/synth.json) on request."""
     from endopipe.commands.synth_command import synth_case
 
     synth_case(
@@ -243,6 +254,14 @@ def synth(
         lens=lens,
         fov_diag=fov_diag,
         vignetting=vignetting,
+        recording={
+            "step_mm": step_mm,
+            "pauses": pauses,
+            "pause_frames": pause_frames,
+            "blurred": blurred,
+            "washed_out": washed_out,
+            "fps": fps,
+        },
     )
 
 

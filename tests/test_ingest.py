@@ -75,7 +75,8 @@ def test_view_reads_what_ingest_wrote(ingested: tuple[Path, Path]) -> None:
     src, out = ingested
     raw = json.loads((out / "frames.json").read_text())
     assert list(raw) == [
-        "frames", "intrinsics", "width", "height", "source", "gt_dir", "fov_shape", "dropped"
+        "frames", "intrinsics", "width", "height", "source", "gt_dir", "fov_shape", "dropped",
+        "dropped_frames",
     ]  # fmt: skip
     assert list(raw["frames"][0]) == ["index", "source_index", "time_s", "file", "mask"]
     view = IngestView(out)

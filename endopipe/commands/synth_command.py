@@ -24,6 +24,7 @@ def synth_case(
     lens: str,
     fov_diag: float | None,
     vignetting: float,
+    recording: dict | None = None,
 ) -> None:
     """Validate the settings (one line naming the bad one), write the case, say what it is."""
     from pydantic import ValidationError
@@ -41,6 +42,7 @@ def synth_case(
             lens=lens,
             fov_diag_deg=fov_diag,
             vignetting=vignetting,
+            **(recording or {}),
         )
     except ValidationError as e:
         err = e.errors()[0]

@@ -72,7 +72,7 @@ class DepthConfig(StageConfig):
         "own resolution (its grid's nodes) up to this (memory, baking time).",
     )
     far_levels: list[float] = Field(
-        [0.1, 0.25, 0.5],
+        [0.1, 0.5],
         min_length=1,
         description="Far bake: the fractions of the surface level (each under 1) whose "
         "iso-surfaces, with the surface's, outline each ray's density ramp: its weight's "

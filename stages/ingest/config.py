@@ -7,6 +7,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from endopipe.pipeline.stage import StageConfig
+from endopipe.stages.ingest.keyframes import KeyframeConfig
 
 # The mask settings live here, not in masks.py, so reading the config needs no OpenCV.
 FovShape = Literal["circle", "octagon", "rectangle", "full"]
@@ -156,6 +157,11 @@ class IngestConfig(StageConfig):
     )
     black_level: float = Field(
         8.0, ge=0, description="A frame whose 99th-percentile grey level is under this is blank."
+    )
+    keyframes: KeyframeConfig = Field(
+        default_factory=KeyframeConfig,
+        description="Long recordings: frames kept by content (motion since the last kept one), "
+        "not by stride; washed-out, blurred and still frames dropped, each counted.",
     )
     fov: FovConfig = Field(
         default_factory=FovConfig, description="Field-of-view (scope border) mask."

@@ -1,8 +1,10 @@
 """Which input frames ingest keeps: time window, stride, and blank / duplicate / blurred
-frames dropped, each reason counted for the summary.
+frames dropped, each reason counted for the summary; in a long recording, keyframes by content
+(keyframes.py) instead of every usable frame.
 
 With `max_frames`, decoding stops as soon as enough frames are kept: a 60-frame run on a
-250-frame video reads what it needs, and the rest is counted as "not_read".
+250-frame video reads what it needs, and the rest is counted as "not_read". Kept frames are
+held at the working resolution, not the source's.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from endopipe.pipeline.errors import InputError
 from endopipe.pipeline.stage import StageContext
 from endopipe.stages.ingest.config import IngestConfig
 from endopipe.stages.ingest.frame_quality import frame_difference, sharpness
+from endopipe.stages.ingest.keyframes import KEYFRAME_REASONS, KeyframeSelector, keyframes_on
 from endopipe.stages.io.input_source import Frame, InputSource
 
 REASONS = ("outside_time_window", "stride", "blank", "duplicate", "blurred", "max_frames")
@@ -25,31 +28,47 @@ REASONS = ("outside_time_window", "stride", "blank", "duplicate", "blurred", "ma
 class Selection:
     """The kept frames and where every other frame of the input went."""
 
-    frames: list[Frame]
+    frames: list[Frame]  # at the working resolution
     dropped: dict[str, int]  # reason -> frames; "not_read" when decoding stopped early
     read: int  # frames decoded
     total: int | None  # frames in the input (None: unknown, decoding stopped early)
+    source_size: tuple[int, int]  # (width, height) of the input's frames
+    size: tuple[int, int]  # (width, height) the kept frames were brought to
+    keyframes: bool = False  # kept by content (a recording)
+    dropped_frames: dict[str, list[int]] | None = None  # by content: source_index by reason
 
 
 def select_frames(source: InputSource, cfg: IngestConfig, ctx: StageContext) -> Selection:
-    """Stride, time window, blank / duplicate / blur filtering; reasons are counted."""
-    dropped = dict.fromkeys(REASONS, 0)
+    """Stride, time window, blank / duplicate / blur filtering, or keyframes by content in a
+    recording; reasons are counted."""
+    declared = source.frame_count()
+    by_content = keyframes_on(cfg.keyframes, declared)
+    dropped = dict.fromkeys(REASONS + (KEYFRAME_REASONS if by_content else ()), 0)
+    selector = KeyframeSelector(cfg.keyframes, cfg.blur_rel_threshold) if by_content else None
     candidates: list[Frame] = []
     scores: list[float] = []  # sharpness of each candidate (blur is judged against the median)
     read, finished = 0, True
     last_grey: np.ndarray | None = None
-    declared = source.frame_count()
-    with ctx.progress("decode", total=declared) as advance:
+    source_size = size = (0, 0)
+    timeline: dict[str, list[int]] = {}
+    with ctx.progress("keyframes" if by_content else "decode", total=declared) as advance:
         for frame in source.frames():
             read += 1
             advance()
-            reason = _drop_reason(frame, read - 1, cfg, last_grey)
+            if read == 1:
+                source_size = (frame.rgb.shape[1], frame.rgb.shape[0])
+                size = working_size(*source_size, cfg.max_size)
+            reason = _drop_reason(frame, read - 1, cfg, None if by_content else last_grey)
+            if reason is None and selector is not None:
+                reason = selector.judge(frame.rgb)
+                if reason is not None:
+                    timeline.setdefault(reason, []).append(frame.source_index)
             if reason is not None:
                 dropped[reason] += 1
                 continue
             last_grey = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
-            candidates.append(frame)
-            scores.append(sharpness(frame.rgb) if cfg.drop_blurred else 0.0)
+            scores.append(sharpness(frame.rgb) if cfg.drop_blurred and not by_content else 0.0)
+            candidates.append(Frame(frame.source_index, frame.time_s, resize(frame.rgb, size)))
             if _enough(scores, cfg):
                 finished = False
                 break
@@ -61,7 +80,7 @@ def select_frames(source: InputSource, cfg: IngestConfig, ctx: StageContext) -> 
             "check the video and --set ingest.start_s/end_s"
         )
     keep = _sharp_enough(scores, cfg)
-    dropped["blurred"] = int((~keep).sum())
+    dropped["blurred"] += int((~keep).sum())
     candidates = [f for f, k in zip(candidates, keep, strict=True) if k]
     if cfg.max_frames is not None and len(candidates) > cfg.max_frames:
         dropped["max_frames"] = len(candidates) - cfg.max_frames
@@ -74,7 +93,9 @@ def select_frames(source: InputSource, cfg: IngestConfig, ctx: StageContext) -> 
             f"only {len(candidates)} usable frame(s) in {source.path} (of {read}); endopipe needs "
             f"at least {cfg.min_frames}: {_more_frames_hint(cfg, dropped)}"
         )
-    return Selection(candidates, dropped, read, total)
+    return Selection(
+        candidates, dropped, read, total, source_size, size, by_content, timeline or None
+    )
 
 
 def _drop_reason(
@@ -96,9 +117,10 @@ def _drop_reason(
 
 
 def _sharp_enough(scores: list[float], cfg: IngestConfig) -> np.ndarray:
-    """Which candidates pass the blur test (relative to their median sharpness)."""
+    """Which candidates pass the blur test (relative to their median sharpness; scores of 0:
+    not judged here)."""
     values = np.asarray(scores, dtype=np.float64)
-    if not cfg.drop_blurred or len(values) < 3:
+    if not cfg.drop_blurred or len(values) < 3 or not values.any():
         return np.ones(len(values), dtype=bool)
     return values >= cfg.blur_rel_threshold * np.median(values)
 
@@ -125,3 +147,15 @@ def _more_frames_hint(cfg: IngestConfig, dropped: dict[str, int]) -> str:
     if dropped.get("max_frames"):
         hints.append(f"raise --set ingest.max_frames (now {cfg.max_frames})")
     return ", or ".join(hints)
+
+
+def working_size(width: int, height: int, max_size: int) -> tuple[int, int]:
+    """(width, height) with the longer side at most `max_size` (downscale only)."""
+    scale = min(1.0, max_size / max(width, height))
+    return max(1, round(width * scale)), max(1, round(height * scale))
+
+
+def resize(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    if (rgb.shape[1], rgb.shape[0]) == size:
+        return rgb
+    return cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)

@@ -50,9 +50,8 @@ class Ingest(Stage):
             format=ctx.case.kind,
         )
         selection = select_frames(source, cfg, ctx)
-        frames, dropped = selection.frames, selection.dropped
-        size = working_size(frames[0].rgb.shape[1], frames[0].rgb.shape[0], cfg.max_size)
-        images = [resize(f.rgb, size) for f in frames]
+        frames, dropped, size = selection.frames, selection.dropped, selection.size
+        images = [f.rgb for f in frames]  # at the working size already
         fov, fov_shape = fov_mask_for_sequence(images[:: max(1, len(images) // 12)], cfg.fov)
         (ctx.out / "frames").mkdir()
         (ctx.out / "masks").mkdir()
@@ -75,7 +74,7 @@ class Ingest(Stage):
                     )
                 )
                 advance()
-        intrinsics = source_intrinsics(source, frames[0].rgb.shape, size)
+        intrinsics = source_intrinsics(source, selection.source_size, size)
         frames_file = FramesFile(
             frames=entries,
             intrinsics=intrinsics,
@@ -85,12 +84,14 @@ class Ingest(Stage):
             gt_dir=str(source.gt_dir) if source.gt_dir else None,
             fov_shape=fov_shape,
             dropped=dropped,
+            dropped_frames=selection.dropped_frames or {},
         )
         write_json(ctx.out / FRAMES_FILE, frames_file.model_dump(mode="json"))
         write_contact_sheet(
             ctx.out / "contact_sheet.png", images, fov, ctx.out, cfg.contact_sheet_frames
         )
-        ctx.log(f"{kept_line(len(frames), selection)}; field of view: {fov_shape}")
+        kind = "keyframes by content" if selection.keyframes else "frames"
+        ctx.log(f"{kept_line(len(frames), selection, kind)}; field of view: {fov_shape}")
         if source.kind == "case" and source.intrinsics is None:
             ctx.log("the case has no intrinsics.json: COLMAP estimates the camera")
         gt = ground_truth_coverage(ctx, source, frames, selection.total)
@@ -100,6 +101,7 @@ class Ingest(Stage):
             read=selection.read,
             kept=len(frames),
             dropped=dropped,
+            keyframes=selection.keyframes,
             width=size[0],
             height=size[1],
             fov_shape=fov_shape,
@@ -128,13 +130,13 @@ def ground_truth_coverage(
     return found
 
 
-def kept_line(kept: int, selection: Selection) -> str:
+def kept_line(kept: int, selection: Selection, kind: str = "frames") -> str:
     """'kept 60 of 250 frames (190 not read, 2 blank)': where every input frame went."""
     total = selection.total if selection.total is not None else f"{selection.read}+"
     reasons = ", ".join(
         f"{n} {reason.replace('_', ' ')}" for reason, n in selection.dropped.items() if n
     )
-    return f"kept {kept} of {total} frames" + (f" ({reasons})" if reasons else "")
+    return f"kept {kept} of {total} {kind}" + (f" ({reasons})" if reasons else "")
 
 
 def warn(ctx: StageContext, message: str) -> None:
@@ -144,25 +146,14 @@ def warn(ctx: StageContext, message: str) -> None:
     )
 
 
-def working_size(width: int, height: int, max_size: int) -> tuple[int, int]:
-    scale = min(1.0, max_size / max(width, height))
-    return max(1, round(width * scale)), max(1, round(height * scale))
-
-
-def resize(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    if (rgb.shape[1], rgb.shape[0]) == size:
-        return rgb
-    return cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
-
-
 def source_intrinsics(
-    source: InputSource, shape: tuple[int, ...], size: tuple[int, int]
+    source: InputSource, source_size: tuple[int, int], size: tuple[int, int]
 ) -> Camera | None:
     """Camera scaled to the working resolution; they must describe the source frames."""
     k = source.intrinsics
     if k is None:
         return None
-    h, w = shape[:2]
+    w, h = source_size
     if (k.width, k.height) != (w, h):
         if abs(k.width / k.height - w / h) > 0.01:
             raise InputError(

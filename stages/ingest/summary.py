@@ -12,6 +12,7 @@ class IngestSummary(Summary):
     read: int  # frames decoded (fewer than source_frames when max_frames stopped decoding)
     kept: int
     dropped: dict[str, int]  # frames not kept, by reason
+    keyframes: bool = False  # frames kept by content (a recording), not every usable one
     width: int
     height: int
     fov_shape: str

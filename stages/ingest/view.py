@@ -54,6 +54,11 @@ class FramesFile(BaseModel):
     gt_dir: str | None = None
     fov_shape: str | None = None
     dropped: dict[str, int] = Field(default_factory=dict)
+    dropped_frames: dict[str, list[int]] = Field(
+        default_factory=dict,
+        description="A recording's timeline: the source_index of each frame not kept, by reason "
+        "(frames kept by content only).",
+    )
 
 
 class IngestView:

@@ -17,11 +17,12 @@ volume-rendering a fifth of a C3VD map's rays (500 ms a map).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
 
-from endopipe.stages.camera import Camera, image_directions
+from endopipe.stages.camera import Camera, image_directions, lens_valid_mask
 from endopipe.stages.surface.marching import iso_level
 
 
@@ -103,49 +104,46 @@ class BakedSurface:
         spread over `max_spread`, see `render.weight_spread`), the depth is 0, unknown. `fill`
         instead gives those rays the depth where they leave the prior's wall (a guess from the
         prior, not an observation; nothing without a wall)."""
-        import open3d as o3d
-
         from endopipe.stages.nerf.render import surface_found
 
-        dc = image_directions(k)  # camera z = 1, the lens's distortion undone
-        norm = np.linalg.norm(dc, axis=-1)
-        d = (dc / norm[..., None]).reshape(-1, 3) @ np.asarray(c2w)[:3, :3].T
-        o = np.broadcast_to(np.asarray(c2w)[:3, 3], d.shape)
-        if self._scene is None:  # the field has no surface at the iso-level yet
-            t = np.full((k.height, k.width), np.inf)
-        else:
-            rays = o3d.core.Tensor(np.concatenate([o, d], 1).astype(np.float32))
-            t = self._scene.cast_rays(rays)["t_hit"].numpy().reshape(k.height, k.width)
+        lens, unit, norm = lens_rays(k)  # the lens's distortion undone, once per camera
+        rays = world_rays(unit, c2w)  # (N, 6) float32 for the lens's N pixels: what Embree takes
+        n = len(rays)
+        t = _cast_rays(self._scene, rays)  # inf: no baked surface (or none yet)
         hit = np.isfinite(t)
         depth = np.where(hit, t / norm, 0.0).astype(np.float32)  # ray length -> z-depth
         opacity = hit.astype(np.float32)
-        miss = ~hit.reshape(-1)
-        hazy = np.zeros(k.height * k.width, bool)
-        exact = miss  # the rays the field itself must answer
-        if self.far is not None and miss.any():
-            pix = np.nonzero(miss)[0]
-            t_far, spread, settled = self.far.cast(o[miss], d[miss])
+        hazy = np.zeros(n, bool)
+        exact = ~hit  # the rays the field itself must answer
+        if self.far is not None and exact.any():
+            pix = np.nonzero(exact)[0]
+            t_far, spread, settled = self.far.cast(rays[pix])
             reached = np.isfinite(t_far) & settled
             if max_spread is not None:
                 hazy[pix] = reached & (spread > max_spread)
             found = reached & ~hazy[pix]
-            opacity.reshape(-1)[pix] = reached
-            depth.reshape(-1)[pix] = np.where(found, t_far / norm.reshape(-1)[pix], 0.0)
-            exact = np.zeros_like(miss)
+            opacity[pix] = reached
+            depth[pix] = np.where(found, t_far / norm[pix], 0.0)
+            exact = np.zeros(n, bool)
             if self.far.faint == "field":
                 exact[pix[~settled]] = True
         if self.model is not None and exact.any():
-            z, op, spread = self._render_missed(k, c2w, np.nonzero(exact)[0])
-            opacity.reshape(-1)[exact] = op
+            z, op, spread = self._render_missed(k, c2w, lens[exact])
+            opacity[exact] = op
             found, hazy[exact] = surface_found(op, spread, min_opacity, max_spread)
-            depth.reshape(-1)[exact] = np.where(found, z, 0.0)
-        unknown = depth.reshape(-1) <= 0
+            depth[exact] = np.where(found, z, 0.0)
+        unknown = depth <= 0
         if fill and self.prior is not None and getattr(self.prior, "kind", "") != "none":
             if unknown.any():
-                dz = (dc.reshape(-1, 3)[unknown]) @ np.asarray(c2w)[:3, :3].T  # camera z = 1
-                _, far = self.prior.ray_bounds(o[unknown], dz)
-                depth.reshape(-1)[unknown] = np.asarray(far, np.float32)
-        return {"depth": depth, "opacity": opacity, "hazy": hazy.reshape(k.height, k.width)}
+                dz = image_directions(k).reshape(-1, 3)[lens[unknown]] @ np.asarray(c2w)[:3, :3].T
+                _, far = self.prior.ray_bounds(rays[unknown, :3], dz)  # dz: camera z = 1
+                depth[unknown] = np.asarray(far, np.float32)
+        images = {}
+        for name, values in (("depth", depth), ("opacity", opacity), ("hazy", hazy)):
+            image = np.zeros(k.height * k.width, values.dtype)  # beyond the lens: no ray, 0
+            image[lens] = values
+            images[name] = image.reshape(k.height, k.width)
+        return images
 
     def _render_missed(
         self, k: Camera, c2w: np.ndarray, pixels: np.ndarray
@@ -184,7 +182,7 @@ class FarSettings:
     """How the far bake samples the field (depth.far_* settings)."""
 
     max_nodes: int = 16_000_000  # at most; a finer field is sampled coarser, not more memory
-    levels: tuple[float, ...] = (0.1, 0.25, 0.5)  # fractions of the surface level, FarBake
+    levels: tuple[float, ...] = (0.1, 0.5)  # fractions of the surface level, FarBake
     faint: str = "unknown"  # a ray staying under the second level: "unknown", or "field" renders it
 
 
@@ -241,23 +239,21 @@ class FarBake:
             scenes.append(_scene(world, mesh.faces))
         return cls(level, fractions, scenes, settings.faint)
 
-    def cast(
-        self, origins: np.ndarray, dirs: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def cast(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Each ray's depth (the ray parameter where half its light is left; inf: it reaches
         no surface), the spread of its weight (IQR / median; inf where the ramp is not known),
         and whether the bake settles it: a ray whose density climbs past the low level but
         never to half the surface's on the grid meets a thick, faint wall (the far end of a
         long lumen, smeared by the field) whose light only the field's integral tells (bench
-        colon: 1% of the pixels, 6-7 radii ahead). `dirs` unit vectors, so that the density
-        (per world unit) integrates along t."""
-        origins = np.broadcast_to(origins, dirs.shape)
-        t = np.full((len(self._scenes), len(dirs)), np.inf)  # (K, N)
-        t[0] = _cast(self._scenes[0], origins, dirs)
+        colon: 1% of the pixels, 6-7 radii ahead). `rays` (N, 6) float32 as Embree takes them,
+        origin then unit direction, so that the density (per world unit) integrates along t."""
+        t = np.full((len(self._scenes), len(rays)), np.inf)  # (K, N)
+        t[0] = _cast_rays(self._scenes[0], rays)
         for j in range(1, len(self._scenes)):  # each level from the one below's crossing on
-            go = np.isfinite(t[j - 1])
-            start = origins[go] + t[j - 1, go, None] * dirs[go]
-            t[j, go] = t[j - 1, go] + _cast(self._scenes[j], start, dirs[go])
+            go = np.nonzero(np.isfinite(t[j - 1]))[0]
+            start = rays[go]
+            start[:, :3] += t[j - 1, go, None].astype(np.float32) * start[:, 3:]
+            t[j, go] = t[j - 1, go] + _cast_rays(self._scenes[j], start)
         levels = self.level * np.array([*self.fractions, 1.0])
         # A thin wall between coarse nodes can peak under the top levels on the grid though
         # the field's surface is there: its ramp, continued, crosses them (the tube 2.5-3 radii
@@ -311,11 +307,41 @@ def _scene(vertices: np.ndarray, faces: np.ndarray) -> Any:
     return raycasting_scene(vertices, faces) if len(faces) else None
 
 
-def _cast(scene: Any, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """First-hit ray parameter of each ray (inf: a miss, or no surface at all)."""
-    if scene is None or not len(dirs):
-        return np.full(len(dirs), np.inf)
+def _cast_rays(scene: Any, rays: np.ndarray) -> np.ndarray:
+    """First-hit ray parameter of each ray ((N, 6) float32, origin then direction; inf: a
+    miss, or no surface at all), float64."""
+    if scene is None or not len(rays):
+        return np.full(len(rays), np.inf)
     import open3d as o3d
 
-    rays = np.concatenate([np.broadcast_to(origins, dirs.shape), dirs], 1).astype(np.float32)
-    return scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
+    hit = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays, np.float32)))
+    return hit["t_hit"].numpy().astype(np.float64)
+
+
+def world_rays(unit: np.ndarray, c2w: np.ndarray) -> np.ndarray:
+    """Rays (N, 6) float32 (origin, unit direction) of a camera at `c2w` through its unit
+    camera-frame directions `unit` (N, 3) float32."""
+    c2w = np.asarray(c2w, np.float64)
+    rays = np.empty((len(unit), 6), np.float32)
+    rays[:, :3] = c2w[:3, 3]
+    np.matmul(unit, c2w[:3, :3].T.astype(np.float32), out=rays[:, 3:])
+    return rays
+
+
+def lens_rays(k: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pixels the lens gives a ray (flat indices, N), their unit camera-frame directions
+    (N, 3) float32 and the lengths (N,) of their z = 1 directions (ray length / z-depth); once
+    per camera. Beyond the lens no ray is cast (C3VD: 12% of the image)."""
+    return _lens_rays(k.model_dump_json())
+
+
+@lru_cache(maxsize=8)
+def _lens_rays(camera_json: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    camera = Camera.model_validate_json(camera_json)
+    lens = np.flatnonzero(lens_valid_mask(camera))
+    dc = image_directions(camera).reshape(-1, 3)[lens]
+    norm = np.linalg.norm(dc, axis=-1)
+    unit = np.ascontiguousarray(dc / norm[:, None], np.float32)
+    for a in (lens, unit, norm):
+        a.setflags(write=False)
+    return lens, unit, norm

@@ -18,6 +18,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from endopipe.commands.synth.events import Events, plan_events, spoil
 from endopipe.commands.synth.lens import LENSES, LensName, lens_camera, vignetting_gain
 from endopipe.commands.synth.raycast import FrameGeometry, MeshGuide, StepBound, trace, trace_frame
 from endopipe.commands.synth.render import Lighting, calibrate_exposure, shade
@@ -39,6 +40,24 @@ class SynthConfig(BaseModel):
 
     seed: int = Field(0, description="Seed of the anatomy, texture, camera path and sensor noise.")
     frames: int = Field(60, ge=2, description="Number of frames (camera travels ~1 mm per frame).")
+    step_mm: float = Field(
+        1.0,
+        gt=0.0,
+        le=5.0,
+        description="Mean camera travel per frame, mm (+-25% slowly varying); a colonoscope "
+        "withdrawn at 25 fps moves about 0.3.",
+    )
+    pauses: int = Field(
+        0, ge=0, description="Times the camera stands still during the recording (recordings)."
+    )
+    pause_frames: int = Field(25, ge=1, description="Frames each pause lasts (25: 1 s at 25 fps).")
+    blurred: float = Field(
+        0.0, ge=0.0, le=0.5, description="Fraction of frames smeared by motion blur."
+    )
+    washed_out: float = Field(
+        0.0, ge=0.0, le=0.5, description="Fraction of frames washed out by the light."
+    )
+    fps: int = Field(15, ge=1, le=120, description="Frame rate of video.mp4.")
     width: int = Field(320, ge=16, description="Image width in pixels (even, for yuv420p video).")
     height: int = Field(256, ge=16, description="Image height in pixels (even).")
     shape: Literal["colon", "cavity"] = Field(
@@ -89,9 +108,17 @@ class SynthSummary(BaseModel):
     seconds: float = Field(description="Wall time of the generation.")
 
 
-#: Fields added with lenses: left out of gt/synth.json at their defaults, so cases made without
-#: them keep their bytes.
+#: Fields added with lenses and recordings: left out of gt/synth.json at their defaults, so cases
+#: made without them keep their bytes.
 OPTICS_DEFAULTS = {"lens": "pinhole", "fov_diag_deg": None, "vignetting": 0.0}
+RECORDING_DEFAULTS = {
+    "step_mm": 1.0,
+    "pauses": 0,
+    "pause_frames": 25,
+    "blurred": 0.0,
+    "washed_out": 0.0,
+    "fps": 15,
+}
 
 
 def intrinsics_for(cfg: SynthConfig) -> Camera:
@@ -99,10 +126,13 @@ def intrinsics_for(cfg: SynthConfig) -> Camera:
     return lens_camera(cfg.width, cfg.height, cfg.lens, cfg.fov_deg, cfg.fov_diag_deg)
 
 
-def describe(cfg: SynthConfig, intr: Camera) -> dict:
-    """The config and, when used, the lens and vignetting, for gt/synth.json."""
-    unset = {k for k, v in OPTICS_DEFAULTS.items() if getattr(cfg, k) == v}
+def describe(cfg: SynthConfig, intr: Camera, events: Events) -> dict:
+    """The config and, when used, the lens, vignetting and events, for gt/synth.json."""
+    defaults = {**OPTICS_DEFAULTS, **RECORDING_DEFAULTS}
+    unset = {k for k, v in defaults.items() if getattr(cfg, k) == v}
     meta: dict = {"config": cfg.model_dump(exclude=unset)}
+    if events.paused or events.blurred or events.washed_out:
+        meta["events"] = events.model_dump()
     if cfg.lens != "pinhole" or cfg.fov_diag_deg is not None:
         meta["lens"] = {
             "name": cfg.lens,
@@ -122,21 +152,24 @@ def describe(cfg: SynthConfig, intr: Camera) -> dict:
 
 def _streams(seed: int) -> dict[str, np.random.Generator]:
     """Independent generators, so changing one part (e.g. texture) leaves the others alone."""
-    names = ("scene", "path", "texture", "bound")
+    names = ("scene", "path", "texture", "bound", "events")  # a new name goes last
     seqs = np.random.SeedSequence(seed).spawn(len(names))
     return {n: np.random.default_rng(s) for n, s in zip(names, seqs, strict=True)}
 
 
-def build_scene(cfg: SynthConfig, rng: dict[str, np.random.Generator]) -> tuple[Scene, np.ndarray]:
-    """The anatomy and the camera poses (N,4,4) moving through it."""
+def build_scene(
+    cfg: SynthConfig, rng: dict[str, np.random.Generator], events: Events
+) -> tuple[Scene, np.ndarray]:
+    """The anatomy and the camera poses (N,4,4) moving through it (still at paused frames)."""
+    still = events.still_mask(cfg.frames)
     if cfg.shape == "colon":
-        scene = ColonScene(rng["scene"], z_end=cfg.frames * 1.3 + 5.0)
+        scene = ColonScene(rng["scene"], z_end=cfg.frames * cfg.step_mm * 1.3 + 5.0)
         if scene.min_wall_radius() < scene.AXIS_CORE + 1.0:  # the tracer's bound relies on it
             raise RuntimeError("synthetic colon: folds reach the axis core")
-        poses = colon_poses(scene, cfg.frames, rng["path"])
+        poses = colon_poses(scene, cfg.frames, rng["path"], cfg.step_mm, still)
     else:
         scene = CavityScene(rng["scene"])
-        poses = cavity_poses(scene, cfg.frames, rng["path"])
+        poses = cavity_poses(scene, cfg.frames, rng["path"], cfg.step_mm, still)
     clearance = scene.f_points(poses[:, :3, 3])
     if clearance.max() > -2.0:
         raise RuntimeError("synthetic camera path comes too close to the wall")
@@ -164,6 +197,7 @@ class Setup:
     texture: MucosaTexture
     intr: Camera
     light: Lighting
+    events: Events
     gain: np.ndarray | None = None  # (H, W) vignetting on linear light
 
     def trace(self, i: int, intr: Camera | None = None) -> FrameGeometry:
@@ -173,14 +207,17 @@ class Setup:
 def prepare(cfg: SynthConfig) -> Setup:
     """Scene, camera path, tracer bounds, texture and the sequence's fixed exposure."""
     rng = _streams(cfg.seed)
-    scene, poses = build_scene(cfg, rng)
+    events = plan_events(
+        cfg.frames, cfg.pauses, cfg.pause_frames, cfg.blurred, cfg.washed_out, rng["events"]
+    )
+    scene, poses = build_scene(cfg, rng, events)
     bound = StepBound(scene, rng["bound"])
     big = cfg.frames * cfg.width * cfg.height > GUIDE_RAYS
     guide = MeshGuide(scene, *scene.mesh()) if big else None
     texture = MucosaTexture(rng["texture"], cfg.texture_contrast)
     intr = intrinsics_for(cfg)
     gain = vignetting_gain(intr, cfg.vignetting)
-    setup = Setup(scene, poses, bound, guide, texture, intr, Lighting(exposure=1.0), gain)
+    setup = Setup(scene, poses, bound, guide, texture, intr, Lighting(exposure=1.0), events, gain)
     # Exposure from quarter-resolution previews of three frames, then fixed for the sequence.
     small = intr.scaled(max(cfg.width // 4, 8), max(cfg.height // 4, 8))
     probes = [setup.trace(i, small) for i in sorted({0, cfg.frames // 2, cfg.frames - 1})]
@@ -201,6 +238,7 @@ def _render_frames(
         geom = setup.trace(i)
         noise_rng = np.random.default_rng([cfg.seed, 7919, i])  # per frame: order-independent
         rgb, spec = shade(geom, setup.texture, setup.light, cfg.noise_std, noise_rng, setup.gain)
+        rgb = spoil(rgb, setup.events.kind_of(i), noise_rng)
         writer.add_frame(rgb, geom.depth, spec)
         lo.append(geom.points.min(0))
         hi.append(geom.points.max(0))
@@ -217,7 +255,7 @@ def generate_case(
     case, a FileExistsError if it is some other non-empty folder. `progress(done, total)` is
     called after each frame."""
     start = time.perf_counter()
-    writer = CaseWriter(out, intrinsics_for(cfg))  # refuses a foreign folder before any work
+    writer = CaseWriter(out, intrinsics_for(cfg), cfg.fps)  # refuses a foreign folder before any work
     try:
         setup = prepare(cfg)
         extent, spec_frac = _render_frames(setup, cfg, writer, progress)
@@ -225,7 +263,7 @@ def generate_case(
         steps = np.linalg.norm(np.diff(setup.poses[:, :3, 3], axis=0), axis=1)
         meta = {
             "generator": "endopipe synth",
-            **describe(cfg, setup.intr),
+            **describe(cfg, setup.intr, setup.events),
             "exposure": setup.light.exposure,
             "specular_fraction": spec_frac,
             "camera_start": setup.poses[0][:3, 3].tolist(),

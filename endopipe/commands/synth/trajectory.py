@@ -1,4 +1,5 @@
-"""Camera paths: smooth, seeded, about 1 mm of travel per frame, poses as OpenCV c2w.
+"""Camera paths: smooth, seeded, about 1 mm of travel per frame (or `step_mm`), poses as OpenCV
+c2w; a recording may stand still at some frames (pauses).
 
 A path is a smooth curve of a parameter tau; frames are placed on it by arc length with a slowly
 varying speed, so the distance travelled is controlled exactly whatever the curve's shape.
@@ -16,12 +17,17 @@ from endopipe.stages.camera import look_at
 STEP_MM = 1.0
 
 
-def _speeds(frames: int, rng: np.random.Generator) -> np.ndarray:
-    """Arc length of each frame: about STEP_MM per frame, +-25 % slowly varying speed."""
+def _speeds(
+    frames: int, rng: np.random.Generator, step_mm: float = STEP_MM, still: np.ndarray | None = None
+) -> np.ndarray:
+    """Arc length of each frame: about `step_mm` per frame, +-25 % slowly varying speed; no
+    step into a frame where `still` (the camera stands where it was the frame before)."""
     period = rng.uniform(30.0, 50.0)
     phase = rng.uniform(0.0, 2.0 * np.pi)
     i = np.arange(1, frames)
-    ds = STEP_MM * (1.0 + 0.25 * np.sin(2.0 * np.pi * i / period + phase))
+    ds = step_mm * (1.0 + 0.25 * np.sin(2.0 * np.pi * i / period + phase))
+    if still is not None:
+        ds = np.where(still[1:], 0.0, ds)
     return np.concatenate([[0.0], np.cumsum(ds)])
 
 
@@ -49,7 +55,13 @@ def _wave(rng: np.random.Generator, amp: tuple[float, float], period: tuple[floa
     return lambda tau: a * np.sin(w * np.asarray(tau) + ph)
 
 
-def colon_poses(scene: ColonScene, frames: int, rng: np.random.Generator) -> np.ndarray:
+def colon_poses(
+    scene: ColonScene,
+    frames: int,
+    rng: np.random.Generator,
+    step_mm: float = STEP_MM,
+    still: np.ndarray | None = None,
+) -> np.ndarray:
     """Advance along +z from z = 0 near the centre line, looking 25 mm ahead down the lumen.
 
     Lateral wobble ~2 mm, view-direction wobble ~5 deg, roll +-10..20 deg plus a slow drift.
@@ -62,7 +74,7 @@ def colon_poses(scene: ColonScene, frames: int, rng: np.random.Generator) -> np.
     def eye(z: np.ndarray) -> np.ndarray:
         return scene.center(z) + np.stack([ox(z), oy(z), np.zeros_like(z)], -1)
 
-    zs = _taus_at(eye, _speeds(frames, rng))
+    zs = _taus_at(eye, _speeds(frames, rng, step_mm, still))
     poses = []
     for z in zs:
         target = scene.center(z + 25.0) + np.array([tx(z), ty(z), 0.0])
@@ -71,7 +83,13 @@ def colon_poses(scene: ColonScene, frames: int, rng: np.random.Generator) -> np.
     return np.stack(poses)
 
 
-def cavity_poses(scene: CavityScene, frames: int, rng: np.random.Generator) -> np.ndarray:
+def cavity_poses(
+    scene: CavityScene,
+    frames: int,
+    rng: np.random.Generator,
+    step_mm: float = STEP_MM,
+    still: np.ndarray | None = None,
+) -> np.ndarray:
     """Circle the long (x) axis 10-14 mm off it, swaying along x, looking out at the wall.
 
     The view leans ~40 deg ahead along the circling direction, sways +-25 deg along x and rolls.
@@ -94,7 +112,7 @@ def cavity_poses(scene: CavityScene, frames: int, rng: np.random.Generator) -> n
         r = r0 + r_wave(tau)
         return np.stack([x, r * np.cos(psi(tau)), r * np.sin(psi(tau))], -1)
 
-    taus = _taus_at(eye, _speeds(frames, rng))
+    taus = _taus_at(eye, _speeds(frames, rng, step_mm, still))
     poses = []
     for tau in taus:
         ps = psi(tau)

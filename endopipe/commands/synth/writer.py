@@ -42,7 +42,7 @@ def _yuv_frame(rgb: np.ndarray) -> av.VideoFrame:
 class CaseWriter:
     """Streams frames into video.mp4, frames/*.png and gt/, then publishes the folder."""
 
-    def __init__(self, out: Path, intr: Camera) -> None:
+    def __init__(self, out: Path, intr: Camera, fps: int = FPS) -> None:
         self.out = Path(out)
         if self.out.exists() and any(self.out.iterdir()) and not (self.out / MARKER).exists():
             raise FileExistsError(f"{self.out} exists and is not a synth case; refusing to replace")
@@ -59,7 +59,7 @@ class CaseWriter:
         self.intr = intr
         self.count = 0
         self._container = av.open(str(self.tmp / "video.mp4"), mode="w")
-        stream = self._container.add_stream("libx264", rate=FPS)
+        stream = self._container.add_stream("libx264", rate=fps)
         stream.width, stream.height, stream.pix_fmt = intr.width, intr.height, "yuv420p"
         # Reproducible bitstream: one encoder thread (slice threads would tie it to the core
         # count) and no macroblock-tree rate control (x264's mbtree read uninitialised memory
@@ -67,8 +67,8 @@ class CaseWriter:
         stream.options = {"crf": str(CRF), "preset": "medium", "x264-params": "mbtree=0"}
         stream.codec_context.thread_count = 1
         stream.codec_context.thread_type = "NONE"
-        stream.codec_context.time_base = Fraction(1, FPS)
-        self._stream = stream
+        stream.codec_context.time_base = Fraction(1, fps)
+        self._stream, self.fps = stream, fps
 
     def _write_json(self, rel: str, obj: object) -> None:
         (self.tmp / rel).write_text(json.dumps(obj, indent=1))
@@ -82,7 +82,7 @@ class CaseWriter:
         cv2.imwrite(str(self.tmp / "gt" / "specular" / f"{name}.png"), mask)
         frame = _yuv_frame(rgb)
         frame.pts = self.count
-        frame.time_base = Fraction(1, FPS)
+        frame.time_base = Fraction(1, self.fps)
         for packet in self._stream.encode(frame):
             self._container.mux(packet)
         self.count += 1
