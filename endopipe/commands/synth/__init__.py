@@ -255,7 +255,7 @@ def generate_case(
     case, a FileExistsError if it is some other non-empty folder. `progress(done, total)` is
     called after each frame."""
     start = time.perf_counter()
-    writer = CaseWriter(out, intrinsics_for(cfg), cfg.fps)  # refuses a foreign folder before any work
+    writer = CaseWriter(out, intrinsics_for(cfg), cfg.fps)  # refuses a foreign folder first
     try:
         setup = prepare(cfg)
         extent, spec_frac = _render_frames(setup, cfg, writer, progress)
