@@ -109,8 +109,27 @@ def run(
     dry_run: Annotated[bool, typer.Option(help="Show what would run, run nothing.")] = False,
     wait: Annotated[bool, typer.Option(help="Wait for another run on the same case.")] = False,
     quiet: Annotated[bool, typer.Option(help="No progress output.")] = False,
+    window: Annotated[
+        int, typer.Option(min=8, help="A recording (long input): keyframes per window.")
+    ] = 60,
+    overlap: Annotated[
+        int, typer.Option(min=3, help="A recording: keyframes shared by neighbouring windows.")
+    ] = 12,
+    executor: Annotated[
+        str, typer.Option(help="Where a recording's windows run: local | slurm | ray.")
+    ] = "local",
+    jobs: Annotated[int | None, typer.Option(min=1, help="A recording: windows at once.")] = None,
+    cluster_config: Annotated[
+        Path | None, typer.Option(help="Slurm / Ray settings (default configs/cluster.yaml).")
+    ] = None,
+    ray_address: Annotated[
+        str | None, typer.Option(help="Ray cluster to join; default: a local one.")
+    ] = None,
 ) -> None:
-    """Run the pipeline on INPUT: what is stale runs, what is fresh is reused."""
+    """Run the pipeline on INPUT: what is stale runs, what is fresh is reused. A long input
+    (ingest.keyframes) whose keyframes fill more than one window runs as a recording: windows
+    through the executor, joined into one trajectory."""
+    from endopipe.commands.recording.command import RecordingOptions
     from endopipe.commands.run import run_case
 
     run_case(
@@ -128,6 +147,15 @@ def run(
         dry_run=dry_run,
         wait=wait,
         quiet=quiet,
+        recording=RecordingOptions(
+            window=window,
+            overlap=overlap,
+            executor=executor,
+            jobs=jobs,
+            cluster_config=str(cluster_config) if cluster_config else None,
+            ray_address=ray_address,
+        ),
+        case_fn=batch_case,
     )
 
 

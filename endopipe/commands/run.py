@@ -12,6 +12,10 @@ from endopipe.commands.cases import is_case_dir, prepare_case
 from endopipe.commands.terminal import console, out
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from endopipe.commands.batch.rows import CaseRow, CaseTask
+    from endopipe.commands.recording.command import RecordingOptions
     from endopipe.pipeline.runner import Pipeline, RunRecord
 
 
@@ -31,9 +35,13 @@ def run_case(
     dry_run: bool,
     wait: bool,
     quiet: bool,
+    recording: RecordingOptions | None = None,
+    case_fn: Callable[[CaseTask], CaseRow] | None = None,
 ) -> None:
     """Run INPUT (a video, an image folder, an input case folder, or a case folder an earlier
-    run made, which then continues where it is, with its last run's settings) through `pipe`."""
+    run made, which then continues where it is, with its last run's settings) through `pipe`.
+    A recording (ingest kept frames by content, more than one window of them) goes on through
+    windows with `case_fn`, each window a case, joined into one trajectory."""
     from endopipe.commands.resume import reopen_case
     from endopipe.pipeline.config import RUN_CONFIG, load_config
     from endopipe.pipeline.errors import ConfigError
@@ -69,6 +77,29 @@ def run_case(
         )
     else:
         case_dir = prepare_case(input_path, workdir, name, intrinsics)
+    if (
+        recording is not None
+        and case_fn is not None
+        and not dry_run
+        and until != "ingest"
+        and may_be_recording(case_dir, configs)
+    ):
+        from endopipe.commands.recording.command import is_recording, run_recording
+
+        first = pipe.run(
+            case_dir,
+            configs,
+            until="ingest",
+            from_stage=from_stage if from_stage == "ingest" else None,
+            force=force,
+            wait_for_lock=wait,
+            console=console,
+            quiet=quiet,
+        )
+        if is_recording(pipe, case_dir, recording):
+            print_record(first, case_dir)
+            run_recording(pipe, case_fn, case_dir, configs, recording, until=until, console=console)
+            return
     record = pipe.run(
         case_dir,
         configs,
@@ -88,6 +119,19 @@ def run_case(
         return
     print_record(record, case_dir)
     print_pose_doubt(pipe, case_dir)
+
+
+def may_be_recording(case_dir: Path, configs: dict) -> bool:
+    """Whether ingest will keep this case's frames by content (a long input): only then is
+    ingest run first, to see whether the keyframes fill more than one window."""
+    from endopipe.pipeline.stage import CaseInfo
+    from endopipe.stages.ingest.keyframes import keyframes_on
+    from endopipe.stages.io.sources import open_input
+
+    info = CaseInfo.load(case_dir)
+    intrinsics = Path(info.intrinsics_file) if info.intrinsics_file else None
+    source = open_input(Path(info.input), intrinsics, format=info.kind)
+    return keyframes_on(configs["ingest"].keyframes, source.frame_count())
 
 
 def print_record(record: RunRecord, case_dir: Path) -> None:

@@ -130,6 +130,11 @@ class IngestConfig(StageConfig):
         description="Keep at most this many frames (after stride and filtering); decoding "
         "stops once they are kept.",
     )
+    frames: list[int] | None = Field(
+        None,
+        description="Keep only the input frames at these positions (source_index, ascending): "
+        "a window of a recording; decoding stops after the last.",
+    )
     start_s: float = Field(0.0, ge=0, description="Skip video before this time (seconds).")
     end_s: float | None = Field(None, gt=0, description="Stop reading the video at this time.")
     max_size: int = Field(

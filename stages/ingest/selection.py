@@ -21,7 +21,15 @@ from endopipe.stages.ingest.frame_quality import frame_difference, sharpness
 from endopipe.stages.ingest.keyframes import KEYFRAME_REASONS, KeyframeSelector, keyframes_on
 from endopipe.stages.io.input_source import Frame, InputSource
 
-REASONS = ("outside_time_window", "stride", "blank", "duplicate", "blurred", "max_frames")
+REASONS = (
+    "outside_time_window",
+    "not_in_window",
+    "stride",
+    "blank",
+    "duplicate",
+    "blurred",
+    "max_frames",
+)
 
 
 @dataclass
@@ -51,6 +59,8 @@ def select_frames(source: InputSource, cfg: IngestConfig, ctx: StageContext) -> 
     last_grey: np.ndarray | None = None
     source_size = size = (0, 0)
     timeline: dict[str, list[int]] = {}
+    wanted = set(cfg.frames) if cfg.frames is not None else None
+    last_wanted = max(wanted, default=-1) if wanted is not None else None
     with ctx.progress("keyframes" if by_content else "decode", total=declared) as advance:
         for frame in source.frames():
             read += 1
@@ -58,6 +68,13 @@ def select_frames(source: InputSource, cfg: IngestConfig, ctx: StageContext) -> 
             if read == 1:
                 source_size = (frame.rgb.shape[1], frame.rgb.shape[0])
                 size = working_size(*source_size, cfg.max_size)
+            if last_wanted is not None and frame.source_index > last_wanted:
+                read -= 1  # not this window's: left for "not_read"
+                finished = False  # a window of a recording: its last frame is behind us
+                break
+            if wanted is not None and frame.source_index not in wanted:
+                dropped["not_in_window"] += 1
+                continue
             reason = _drop_reason(frame, read - 1, cfg, None if by_content else last_grey)
             if reason is None and selector is not None:
                 reason = selector.judge(frame.rgb)

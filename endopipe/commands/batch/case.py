@@ -40,6 +40,7 @@ def process_case(
     t0, started = time.perf_counter(), time.time()
     row = CaseRow(case=task.name, status="failed", reader=task.reader, input=task.input)
     workdir, path = Path(task.workdir), Path(task.input)
+    intrinsics = Path(task.intrinsics) if task.intrinsics else None
     case_dir = workdir / task.name
     try:
         pipe = build_pipeline()  # imports the stages: not counted in the case's wall time
@@ -49,7 +50,7 @@ def process_case(
         }
         selected = [s.name for s in pipe.selection(task.until)]
         row.failed_stage = selected[0]  # reading the input is the first stage's job
-        source = open_input(path, None, format=task.reader)
+        source = open_input(path, intrinsics, format=task.reader)
         gt = source.ground_truth()
         row.gt_kind = gt.kind if gt is not None else ""
         row.failed_stage = None
@@ -59,7 +60,7 @@ def process_case(
                 return row
             row.stages_cached = selected
         else:
-            case_dir = prepare_case(path, workdir, task.name, None, task.reader)
+            case_dir = prepare_case(path, workdir, task.name, intrinsics, task.reader)
             record = pipe.run(case_dir, configs, until=task.until, quiet=True)
             row.stages_ran = [s.stage for s in record.stages if s.status == "ran"]
             row.stages_cached = [s.stage for s in record.stages if s.status == "cached"]

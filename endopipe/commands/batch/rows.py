@@ -18,6 +18,7 @@ class CaseTask(BaseModel):
     workdir: str
     configs: dict[str, dict[str, Any]]
     until: str | None = None
+    intrinsics: str | None = None  # intrinsics.json for the input's frames (--intrinsics)
     threads: int | None = None
     check_only: bool = False  # only report whether every stage is already fresh
 

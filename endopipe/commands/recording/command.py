@@ -1,0 +1,275 @@
+"""A recording through windows: its keyframes (the whole input's ingest) cut into overlapping
+windows, each window a case of the same stages under `<case>/windows/`, sent to an executor as
+batch sends its cases, then joined into one trajectory under `<case>/recording/`.
+
+A window that fails or is doubtful is reported and the others carry on; a re-run does only the
+windows with work left (each window is a cached case).
+"""
+
+from __future__ import annotations
+
+import copy
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from pydantic import BaseModel, Field
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from endopipe.commands.batch.driver import run_cases
+from endopipe.commands.batch.rows import CaseRow, CaseTask
+from endopipe.commands.recording.join import Joined, join_windows
+from endopipe.commands.recording.windows import WindowPlan, plan_windows
+from endopipe.pipeline.errors import EndopipeError, InputError
+from endopipe.pipeline.executors import ClusterConfig, load_cluster_config
+from endopipe.pipeline.runner import Pipeline
+from endopipe.pipeline.stage import CaseInfo, StageConfig, write_json
+
+RECORDING_DIR = "recording"
+WINDOWS_DIR = "windows"
+
+
+class RecordingOptions(BaseModel):
+    """How a long recording is cut and where its windows run."""
+
+    window: int = Field(60, ge=8, description="Keyframes per window.")
+    overlap: int = Field(12, ge=3, description="Keyframes shared by neighbouring windows.")
+    executor: str = Field("local", description="local | slurm | ray.")
+    jobs: int | None = Field(None, ge=1, description="Windows at once.")
+    cluster_config: str | None = None
+    ray_address: str | None = None
+
+
+class WindowRow(BaseModel):
+    """One window's outcome in the recording's summary."""
+
+    name: str
+    frames: int
+    status: str
+    reason: str = ""
+    pose_verdict: str = ""
+    registered: int | None = None
+    depth_abs_rel: float | None = None  # median-scaled, against the ground truth
+    wall_s: float = 0.0
+
+
+class RecordingSummary(BaseModel):
+    """recording/summary.json: the windows, the junctions, the joined trajectory's scores."""
+
+    keyframes: int
+    windows: list[WindowRow]
+    segments: int
+    posed_keyframes: int
+    verdict: str  # ok | doubtful
+    reasons: list[str] = []
+    ate_percent_of_path: float | None = None  # joined trajectory against the truth (segment 0)
+    ate_frames: int | None = None
+
+
+def is_recording(pipe: Pipeline, case_dir: Path, options: RecordingOptions) -> bool:
+    """Whether ingest kept this input's frames by content and kept more than one window."""
+    ingest = pipe.view(case_dir, "ingest")
+    return bool(ingest.summary.keyframes) and len(ingest.frames) > options.window
+
+
+def window_configs(configs: dict[str, StageConfig], frames: list[int]) -> dict[str, dict]:
+    """The run's settings for one window: ingest takes exactly its keyframes (already vetted
+    for blur, light and motion by the recording's own ingest)."""
+    resolved = {name: cfg.model_dump(mode="json") for name, cfg in configs.items()}
+    ingest = copy.deepcopy(resolved["ingest"])
+    ingest.update(
+        frames=frames,
+        stride=1,
+        max_frames=None,
+        start_s=0.0,
+        end_s=None,
+        drop_duplicates=False,
+        drop_blurred=False,
+    )
+    ingest["keyframes"]["mode"] = "all"
+    resolved["ingest"] = ingest
+    return resolved
+
+
+def run_recording(
+    pipe: Pipeline,
+    case_fn: Callable[[CaseTask], CaseRow],
+    case_dir: Path,
+    configs: dict[str, StageConfig],
+    options: RecordingOptions,
+    *,
+    until: str | None,
+    console: Console,
+) -> RecordingSummary:
+    """Cut, run every window, join; writes <case>/recording/ and prints a table."""
+    info = CaseInfo.load(case_dir)
+    ingest = pipe.view(case_dir, "ingest")
+    keyframes = [f.source_index for f in ingest.frames]
+    plan = plan_windows(keyframes, options.window, options.overlap)
+    windows_dir = (case_dir / WINDOWS_DIR).resolve()
+    windows_dir.mkdir(exist_ok=True)
+    console.print(
+        f"[bold]{escape(info.name)}[/bold]: a recording of {len(keyframes)} keyframes in "
+        f"{len(plan.windows)} windows of {plan.size} ({plan.overlap} shared), "
+        f"{options.executor} executor"
+    )
+    tasks = [
+        CaseTask(
+            name=plan.name(k),
+            input=info.input,
+            reader=info.kind,
+            workdir=str(windows_dir),
+            configs=window_configs(configs, frames),
+            until=until,
+            intrinsics=info.intrinsics_file,
+        )
+        for k, frames in enumerate(plan.windows)
+    ]
+    cluster = (
+        load_cluster_config(Path(options.cluster_config) if options.cluster_config else None)
+        if options.executor != "local"
+        else ClusterConfig()
+    )
+    rows = run_cases(
+        options.executor,
+        case_fn,
+        tasks,
+        jobs=options.jobs,
+        workdir=windows_dir,
+        cluster=cluster,
+        ray_address=options.ray_address,
+        on_row=lambda row: _print_window(console, row),
+        note=lambda m: console.print(f"[dim]{escape(m)}[/dim]"),
+    )
+    poses = [
+        _window_poses(pipe, windows_dir / row.case) if row.status == "ok" else None for row in rows
+    ]
+    joined = join_windows([plan.name(k) for k in range(len(plan.windows))], poses, plan.windows)
+    summary = summarise(plan, rows, joined, _truth_poses(ingest))
+    _publish(case_dir, plan, joined, summary)
+    _print_summary(console, summary, joined, case_dir)
+    return summary
+
+
+def _window_poses(pipe: Pipeline, window_dir: Path) -> dict[int, np.ndarray] | None:
+    """A window's registered cameras by source_index (None: no poses to join)."""
+    try:
+        ingest = pipe.view(window_dir, "ingest")
+        poses = pipe.view(window_dir, "poses")
+    except (OSError, ValueError):
+        return None
+    return {ingest.frame(i).source_index: c2w for i, c2w in poses.c2w.items()}
+
+
+def _truth_poses(ingest) -> list[np.ndarray] | None:
+    try:
+        gt = ingest.ground_truth()
+    except InputError:
+        return None
+    if gt is None or not gt.has_poses():
+        return None
+    return [np.asarray(p, np.float64) for p in gt.poses()]
+
+
+def summarise(
+    plan: WindowPlan, rows: list[CaseRow], joined: Joined, truth: list[np.ndarray] | None
+) -> RecordingSummary:
+    """The recording's verdict: doubtful when a window failed or is doubtful, or the chain
+    broke; the ATE of the first segment against the truth, when there is one."""
+    from endopipe.stages.metrics.depth import pose_metrics
+
+    windows = [
+        WindowRow(
+            name=row.case,
+            frames=len(frames),
+            status=row.status,
+            reason=row.reason,
+            pose_verdict=row.pose_verdict,
+            registered=_int(row.metrics.get("poses.registered")),
+            depth_abs_rel=row.metrics.get("depth.median_scaled.abs_rel"),
+            wall_s=row.wall_s,
+        )
+        for row, frames in zip(rows, plan.windows, strict=True)
+    ]
+    reasons = [f"{w.name} failed: {w.reason}" for w in windows if w.status != "ok"]
+    reasons += [f"{w.name}: poses doubtful" for w in windows if w.pose_verdict == "doubtful"]
+    reasons += [f"{j.a}-{j.b} not joined: {j.reason}" for j in joined.junctions if not j.joined]
+    ate = frames = None
+    if truth is not None:
+        est = {f.source_index: np.array(f.c2w) for f in joined.frames if f.segment == 0}
+        gt = {i: truth[i] for i in est if i < len(truth)}
+        if len(gt) >= 3:
+            m = pose_metrics(est, gt)
+            ate, frames = m["ate_percent_of_path"], int(m["frames"])
+    return RecordingSummary(
+        keyframes=len({i for w in plan.windows for i in w}),
+        windows=windows,
+        segments=joined.segments,
+        posed_keyframes=len(joined.frames),
+        verdict="doubtful" if reasons else "ok",
+        reasons=reasons,
+        ate_percent_of_path=ate,
+        ate_frames=frames,
+    )
+
+
+def _int(value: float | None) -> int | None:
+    return None if value is None else int(value)
+
+
+def _publish(case_dir: Path, plan: WindowPlan, joined: Joined, summary: RecordingSummary) -> None:
+    """recording/ written whole into a temporary folder, then renamed into place."""
+    final = case_dir / RECORDING_DIR
+    tmp = case_dir / f".{RECORDING_DIR}.tmp"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    write_json(tmp / "windows.json", plan.model_dump(mode="json"))
+    write_json(tmp / "trajectory.json", joined.model_dump(mode="json"))
+    write_json(tmp / "summary.json", summary.model_dump(mode="json"))
+    shutil.rmtree(final, ignore_errors=True)
+    tmp.rename(final)
+
+
+def _print_window(console: Console, row: CaseRow) -> None:
+    if row.status == "ok":
+        verdict = " [red]poses doubtful[/red]" if row.pose_verdict == "doubtful" else ""
+        ran = "+".join(row.stages_ran) or "all cached"
+        console.print(f"[green]✓[/green] {row.case}  ran {ran}, {row.this_batch_s:.1f} s{verdict}")
+    else:
+        console.print(f"[red]✗[/red] {row.case}  {escape(row.reason)}")
+
+
+def _print_summary(
+    console: Console, summary: RecordingSummary, joined: Joined, case_dir: Path
+) -> None:
+    table = Table(title="windows")
+    for col in ("window", "frames", "status", "poses", "junction", "depth AbsRel"):
+        table.add_column(col)
+    error = {j.b: j for j in joined.junctions}
+    for w in summary.windows:
+        j = error.get(w.name)
+        junction = "" if j is None else (f"{j.error_pct:.2f}%" if j.error_pct is not None else "-")
+        if j is not None and not j.joined:
+            junction = f"[red]{escape(j.reason)}[/red]"
+        absrel = f"{w.depth_abs_rel:.4f}" if w.depth_abs_rel is not None else ""
+        table.add_row(w.name, str(w.frames), w.status, w.pose_verdict, junction, absrel)
+    console.print(table)
+    ate = (
+        f"; ATE {summary.ate_percent_of_path:.2f}% of the path over {summary.ate_frames} keyframes"
+        if summary.ate_percent_of_path is not None
+        else ""
+    )
+    colour = "green" if summary.verdict == "ok" else "yellow"
+    console.print(
+        f"[{colour}]{summary.verdict}[/{colour}]: {summary.posed_keyframes} of "
+        f"{summary.keyframes} keyframes posed in {summary.segments} segment(s){ate} -> "
+        f"{case_dir / RECORDING_DIR}",
+        soft_wrap=True,
+    )
+    for reason in summary.reasons:
+        console.print(f"  [yellow]{escape(reason)}[/yellow]", soft_wrap=True)
+    if summary.windows and all(w.status != "ok" for w in summary.windows):
+        raise EndopipeError("every window of the recording failed; see the table above")
