@@ -80,3 +80,28 @@ def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> TinyRun:
 @pytest.fixture(scope="session")
 def tiny_case(tiny_run: TinyRun) -> Path:
     return tiny_run.case
+
+
+#: A synthetic colonoscope withdrawal (0.3 mm a frame) with a pause and spoiled frames, whose
+#: truth lists every event (gt/synth.json): what keyframes by content and windows are tried on.
+WITHDRAWAL = {
+    "seed": 3,
+    "frames": 120,
+    "width": 320,
+    "height": 256,
+    "step_mm": 0.3,
+    "pauses": 1,
+    "pause_frames": 15,
+    "blurred": 0.05,
+    "washed_out": 0.05,
+}
+
+
+@pytest.fixture(scope="session")
+def withdrawal(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The case folder of WITHDRAWAL (about 25 s to render, once per session)."""
+    from endopipe.commands.synth import SynthConfig, generate_case
+
+    src = tmp_path_factory.mktemp("withdrawal") / "withdrawal"
+    generate_case(src, SynthConfig(**WITHDRAWAL))
+    return src

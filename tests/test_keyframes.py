@@ -11,38 +11,25 @@ import numpy as np
 import pytest
 
 from endopipe.cli import main
-
-RECORDING = {
-    "seed": 3,
-    "frames": 120,
-    "width": 320,
-    "height": 256,
-    "step_mm": 0.3,
-    "pauses": 1,
-    "pause_frames": 15,
-    "blurred": 0.05,
-    "washed_out": 0.05,
-}
+from tests.conftest import WITHDRAWAL
 
 
 @pytest.fixture(scope="module")
-def recording(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, dict]:
-    from endopipe.commands.synth import SynthConfig, generate_case
-
-    src = tmp_path_factory.mktemp("rec") / "withdrawal"
-    generate_case(src, SynthConfig(**RECORDING))
+def recording(
+    withdrawal: Path, tmp_path_factory: pytest.TempPathFactory
+) -> tuple[Path, dict, dict]:
     wd = tmp_path_factory.mktemp("wd")
-    args = ["run", str(src), "--workdir", str(wd), "--until", "ingest", "--quiet"]
+    args = ["run", str(withdrawal), "--workdir", str(wd), "--until", "ingest", "--quiet"]
     assert main([*args, "--set", "ingest.keyframes.mode=content"]) == 0
     frames = json.loads((wd / "withdrawal" / "01_ingest" / "frames.json").read_text())
-    events = json.loads((src / "gt" / "synth.json").read_text())["events"]
-    return src, frames, events
+    events = json.loads((withdrawal / "gt" / "synth.json").read_text())["events"]
+    return withdrawal, frames, events
 
 
 def test_synth_recording_lists_its_events(recording: tuple[Path, dict, dict]) -> None:
     src, _, events = recording
     poses = np.array(json.loads((src / "gt" / "poses.json").read_text())["poses"])
-    assert len(events["paused"]) == RECORDING["pause_frames"]
+    assert len(events["paused"]) == WITHDRAWAL["pause_frames"]
     assert len(events["blurred"]) == len(events["washed_out"]) == 6  # 5% of 120
     for i in events["paused"]:  # the camera stands where it stood the frame before
         assert np.allclose(poses[i], poses[i - 1])
@@ -75,4 +62,4 @@ def test_keyframes_are_spaced_like_the_bench_frames(recording: tuple[Path, dict,
     spacing = np.linalg.norm(np.diff(poses[kept, :3, 3], axis=0), axis=1)
     print(f"{len(kept)} keyframes of 120, spacing median {np.median(spacing):.2f} mm")
     assert 0.6 < np.median(spacing) < 1.4 and spacing.max() < 3.0
-    assert sum(frames["dropped"].values()) + len(kept) == RECORDING["frames"]
+    assert sum(frames["dropped"].values()) + len(kept) == WITHDRAWAL["frames"]

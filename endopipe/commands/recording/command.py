@@ -236,8 +236,8 @@ def _publish(case_dir: Path, plan: WindowPlan, joined: Joined, summary: Recordin
 def _print_window(console: Console, row: CaseRow) -> None:
     if row.status == "ok":
         verdict = " [red]poses doubtful[/red]" if row.pose_verdict == "doubtful" else ""
-        ran = "+".join(row.stages_ran) or "all cached"
-        console.print(f"[green]✓[/green] {row.case}  ran {ran}, {row.this_batch_s:.1f} s{verdict}")
+        ran = f"ran {'+'.join(row.stages_ran)}" if row.stages_ran else "all cached"
+        console.print(f"[green]✓[/green] {row.case}  {ran}, {row.this_batch_s:.1f} s{verdict}")
     else:
         console.print(f"[red]✗[/red] {row.case}  {escape(row.reason)}")
 

@@ -1,0 +1,124 @@
+"""Recordings: windows cut from the keyframes, joined into one trajectory.
+
+The join is checked on cameras with a known truth (each window in a frame and scale of its own),
+then end to end on a synthetic withdrawal: real ingest, real pycolmap in every window, against
+the generator's poses and against the same keyframes reconstructed in one window.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from endopipe.cli import main
+from endopipe.commands.recording.join import join_windows
+from endopipe.commands.recording.windows import plan_windows
+from endopipe.pipeline.errors import ConfigError
+from endopipe.stages.camera.transforms import apply_sim3, look_at
+from endopipe.stages.metrics.depth import pose_metrics
+
+
+def test_windows_cover_every_keyframe_and_overlap() -> None:
+    keyframes = list(range(100, 147))
+    plan = plan_windows(keyframes, 20, 6)
+    assert [len(w) for w in plan.windows] == [20, 20, 20]
+    assert sorted({i for w in plan.windows for i in w}) == keyframes
+    for a, b in zip(plan.windows, plan.windows[1:], strict=False):
+        assert len(set(a) & set(b)) >= 6
+    assert plan_windows(keyframes[:20], 20, 6).windows == [keyframes[:20]]
+    with pytest.raises(ConfigError, match="overlap"):
+        plan_windows(keyframes, 20, 2)
+
+
+def _path(n: int) -> list[np.ndarray]:
+    """Cameras advancing down a gently curving tube, looking ahead."""
+    z = np.linspace(0, 40, n)
+    eye = np.stack([3 * np.sin(z / 15), 2 * np.cos(z / 20), z], 1)
+    return [look_at(e, e + [0.1, 0.0, 1.0], np.array([0.0, -1.0, 0.0])) for e in eye]
+
+
+def _window(truth: list[np.ndarray], frames: list[int], seed: int, noise: float = 0.0) -> dict:
+    """The window's cameras in a frame and scale of its own (a random similarity)."""
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    r = q * np.sign(np.linalg.det(q))
+    s, t = rng.uniform(0.2, 5.0), rng.normal(size=3) * 10
+    out = {}
+    for i in frames:
+        c2w = apply_sim3(s, r, t, truth[i])
+        c2w[:3, 3] += rng.normal(size=3) * noise * s
+        out[i] = c2w
+    return out
+
+
+def test_join_recovers_the_trajectory_from_windows_in_their_own_frames() -> None:
+    truth = _path(47)
+    plan = plan_windows(list(range(47)), 20, 6)
+    poses = [_window(truth, w, seed=k, noise=0.01) for k, w in enumerate(plan.windows)]
+    joined = join_windows(["w0", "w1", "w2"], poses, plan.windows)
+    assert joined.segments == 1 and all(j.joined for j in joined.junctions)
+    assert all(j.error_pct < 1.5 for j in joined.junctions)  # 0.4-0.6% with this noise
+    est = {f.source_index: np.array(f.c2w) for f in joined.frames}
+    assert len(est) == 47
+    assert pose_metrics(est, dict(enumerate(truth)))["ate_percent_of_path"] < 0.1
+
+
+def test_a_failed_or_broken_window_splits_the_trajectory_not_bends_it() -> None:
+    truth = _path(47)
+    plan = plan_windows(list(range(47)), 20, 6)
+    poses = [_window(truth, w, seed=k) for k, w in enumerate(plan.windows)]
+    failed = join_windows(["w0", "w1", "w2"], [poses[0], None, poses[2]], plan.windows)
+    assert failed.segments == 2
+    assert [j.joined for j in failed.junctions] == [False, False]
+    assert "w1 failed" in failed.junctions[0].reason
+    assert {f.window for f in failed.frames} == {"w0", "w2"}  # w1's own frames: no pose
+    # w1's shared cameras scrambled: its junction with w0 does not fit
+    rng = np.random.default_rng(0)
+    broken = dict(poses[1])
+    for i in broken:
+        broken[i] = broken[i].copy()
+        broken[i][:3, 3] += rng.normal(size=3) * 50
+    split = join_windows(["w0", "w1", "w2"], [poses[0], broken, poses[2]], plan.windows)
+    assert not split.junctions[0].joined and split.segments >= 2
+
+
+def _trajectory(case: Path) -> dict[int, np.ndarray]:
+    frames = json.loads((case / "recording" / "trajectory.json").read_text())["frames"]
+    return {f["source_index"]: np.array(f["c2w"]) for f in frames}
+
+
+def test_a_withdrawal_through_windows_matches_the_truth_and_one_window(
+    withdrawal: Path, tmp_path: Path
+) -> None:
+    wd = tmp_path / "wd"
+    args = ["run", str(withdrawal), "--workdir", str(wd), "--until", "poses", "--quiet"]
+    args += ["--set", "ingest.keyframes.mode=content"]
+    assert main([*args, "--window", "14", "--overlap", "5"]) == 0
+    case = wd / "withdrawal"
+    summary = json.loads((case / "recording" / "summary.json").read_text())
+    assert len(summary["windows"]) >= 2 and summary["segments"] == 1
+    assert summary["verdict"] == "ok", summary["reasons"]
+    joined = _trajectory(case)
+    truth = json.loads((withdrawal / "gt" / "poses.json").read_text())["poses"]
+    truth = {i: np.array(p) for i, p in enumerate(truth)}
+    ate = pose_metrics(joined, truth)["ate_percent_of_path"]
+    print(f"{len(summary['windows'])} windows, ATE {ate:.2f}% of the path")
+    assert ate < 2.0
+    # the same keyframes in one window (today's path): the joined trajectory agrees
+    one = tmp_path / "one"
+    assert main(["run", str(withdrawal), "--workdir", str(one), *args[4:], "--window", "60"]) == 0
+    from endopipe.stages.ingest.view import IngestView
+    from endopipe.stages.poses.view import PosesView
+
+    ingest = IngestView(one / "withdrawal" / "01_ingest")
+    single = PosesView(one / "withdrawal" / "02_poses").c2w
+    single = {ingest.frame(i).source_index: c2w for i, c2w in single.items()}
+    assert pose_metrics(joined, single)["ate_percent_of_path"] < 2.0
+    # a re-run finds every window done and only joins again
+    windows = sorted((case / "windows").iterdir())
+    before = [len(list((w / "runs").glob("*.json"))) for w in windows]
+    assert main([*args, "--window", "14", "--overlap", "5"]) == 0
+    assert [len(list((w / "runs").glob("*.json"))) for w in windows] == before
