@@ -22,11 +22,13 @@ from endopipe.stages.surface.mesh import RawMesh
 @dataclass
 class DepthFrame:
     """One view to fuse: z-depth (H, W) float32 with 0 = invalid, its camera-to-world pose and
-    optionally its colours (H, W, 3) uint8 on the same grid."""
+    optionally its colours (H, W, 3) uint8 on the same grid, and its own camera (windows of a
+    recording may each have estimated theirs; None: the fusion's)."""
 
     depth: np.ndarray
     c2w: np.ndarray
     rgb: np.ndarray | None = None
+    camera: Camera | None = None
 
 
 def tsdf_fuse(
@@ -48,16 +50,18 @@ def tsdf_fuse(
     vbg = _voxel_grid(voxel, block_resolution, colour)
     mult = float(sdf_trunc) / float(voxel)
     used = 0
-    resamplers: dict[tuple[int, int], PinholeResampler] = {}
+    resamplers: dict[str, PinholeResampler] = {}
     for fr in frames:
         if not ((fr.depth > 0) & (fr.depth < depth_trunc)).any():
             continue  # nothing to fuse (open3d raises on a frame that touches no block)
         h, w = fr.depth.shape
-        k = camera if (w, h) == (camera.width, camera.height) else camera.scaled(w, h)
+        own = fr.camera or camera
+        k = own if (w, h) == (own.width, own.height) else own.scaled(w, h)
         if k.distorted:
-            if (w, h) not in resamplers:
-                resamplers[(w, h)] = PinholeResampler.of(k)
-            fr, k = resamplers[(w, h)](fr), resamplers[(w, h)].pinhole
+            key = k.model_dump_json()
+            if key not in resamplers:
+                resamplers[key] = PinholeResampler.of(k)
+            fr, k = resamplers[key](fr), resamplers[key].pinhole
             h, w = fr.depth.shape
         K = o3c.Tensor(k.matrix())
         w2c = o3c.Tensor(np.linalg.inv(np.asarray(fr.c2w, np.float64)))

@@ -67,6 +67,9 @@ class RecordingSummary(BaseModel):
     reasons: list[str] = []
     ate_percent_of_path: float | None = None  # joined trajectory against the truth (segment 0)
     ate_frames: int | None = None
+    mesh_frames: int | None = None  # keyframes fused into recording/mesh.ply (segment 0)
+    chamfer_pct_radius: float | None = None  # the fused mesh against the ground-truth mesh
+    off_seen_pct: float | None = None  # share of the mesh far from any surface a camera saw
 
 
 def is_recording(pipe: Pipeline, case_dir: Path, options: RecordingOptions) -> bool:
@@ -148,8 +151,12 @@ def run_recording(
         _window_poses(pipe, windows_dir / row.case) if row.status == "ok" else None for row in rows
     ]
     joined = join_windows([plan.name(k) for k in range(len(plan.windows))], poses, plan.windows)
-    summary = summarise(plan, rows, joined, _truth_poses(ingest))
-    _publish(case_dir, plan, joined, summary)
+    truth = _truth_poses(ingest)
+    summary = summarise(plan, rows, joined, truth)
+    mesh = None
+    if until is None or pipe.index(until) >= pipe.index("mesh"):
+        mesh = one_mesh(pipe, windows_dir, joined, configs, ingest, truth, summary)
+    _publish(case_dir, plan, joined, summary, mesh)
     _print_summary(console, summary, joined, case_dir)
     return summary
 
@@ -220,12 +227,72 @@ def _int(value: float | None) -> int | None:
     return None if value is None else int(value)
 
 
-def _publish(case_dir: Path, plan: WindowPlan, joined: Joined, summary: RecordingSummary) -> None:
+def one_mesh(
+    pipe: Pipeline,
+    windows_dir: Path,
+    joined: Joined,
+    configs: dict[str, StageConfig],
+    ingest,
+    truth: list[np.ndarray] | None,
+    summary: RecordingSummary,
+):
+    """The windows' depth fused into one cleaned mesh; its scores into `summary`."""
+    from endopipe.commands.recording.fuse import fuse_recording
+    from endopipe.stages.mesh.evaluation import (
+        case_ground_truth,
+        evaluate_against_gt,
+        ground_truth_mesh,
+    )
+    from endopipe.stages.surface.clean import clean_mesh
+
+    cfg = configs["mesh"]
+    fused = fuse_recording(pipe, windows_dir, joined, cfg)
+    if fused is None:
+        return None
+    raw, info, cams = fused
+    if raw.empty:
+        return None
+    mesh, _ = clean_mesh(
+        raw,
+        min_component_fraction=cfg.min_component_fraction,
+        min_component_diameter=cfg.min_component_diameter * info["radius"],
+        smooth_iterations=cfg.smooth_iterations,
+        taubin_lambda=cfg.taubin_lambda,
+        taubin_mu=cfg.taubin_mu,
+    )
+    summary.mesh_frames = int(info["frames_used"])
+    gt = case_ground_truth(ingest.gt_dir) if ingest.gt_dir else None
+    gt_mesh = ground_truth_mesh(gt) if gt is not None else None
+    if gt_mesh is not None and truth is not None:
+        centre = gt.centerline() if hasattr(gt, "centerline") else None
+        metrics = evaluate_against_gt(
+            mesh,
+            cams,  # type: ignore[arg-type]  (a case's cameras, by source_index)
+            gt_mesh,
+            {i: truth[i] for i in cams.c2w if i < len(truth)},
+            info["depth_trunc"],
+            cfg,
+            gt_radius=float(np.mean(centre[1])) if centre is not None else None,
+            est_radius=info["radius"],
+        )
+        if metrics.get("evaluated"):
+            summary.chamfer_pct_radius = metrics.get("chamfer_pct_radius")
+            summary.off_seen_pct = metrics.get("off_seen_pct")
+    return mesh
+
+
+def _publish(
+    case_dir: Path, plan: WindowPlan, joined: Joined, summary: RecordingSummary, mesh=None
+) -> None:
     """recording/ written whole into a temporary folder, then renamed into place."""
     final = case_dir / RECORDING_DIR
     tmp = case_dir / f".{RECORDING_DIR}.tmp"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
+    if mesh is not None:
+        from endopipe.stages.mesh.view import save_mesh
+
+        save_mesh(tmp, mesh)
     write_json(tmp / "windows.json", plan.model_dump(mode="json"))
     write_json(tmp / "trajectory.json", joined.model_dump(mode="json"))
     write_json(tmp / "summary.json", summary.model_dump(mode="json"))
@@ -262,6 +329,12 @@ def _print_summary(
         if summary.ate_percent_of_path is not None
         else ""
     )
+    if summary.chamfer_pct_radius is not None:
+        ate += (
+            f"; one mesh of {summary.mesh_frames} keyframes: Chamfer "
+            f"{summary.chamfer_pct_radius:.2f}% of the radius, {summary.off_seen_pct:.1f}% off "
+            "the seen surface"
+        )
     colour = "green" if summary.verdict == "ok" else "yellow"
     console.print(
         f"[{colour}]{summary.verdict}[/{colour}]: {summary.posed_keyframes} of "

@@ -6,6 +6,9 @@ reconstructions from those shared cameras, so an overlap of fewer than 3 frames 
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 from pydantic import BaseModel, Field
 
 from endopipe.pipeline.errors import ConfigError
@@ -14,7 +17,7 @@ from endopipe.pipeline.errors import ConfigError
 class WindowPlan(BaseModel):
     """How a recording was cut (recording/windows.json)."""
 
-    size: int = Field(description="Keyframes per window.")
+    size: int = Field(description="Keyframes per window, at most.")
     overlap: int = Field(description="Keyframes shared by neighbouring windows.")
     windows: list[list[int]] = Field(description="Each window's keyframes, by source_index.")
 
@@ -23,8 +26,9 @@ class WindowPlan(BaseModel):
 
 
 def plan_windows(keyframes: list[int], size: int, overlap: int) -> WindowPlan:
-    """Windows of `size` keyframes (source indices, ascending), each sharing `overlap` with the
-    next; the last is shifted back to a full window rather than left short."""
+    """As few windows of at most `size` keyframes (source indices, ascending) as cover them
+    with `overlap` shared between neighbours, all of one length and evenly spread (no short
+    tail window, no window that repeats most of its neighbour)."""
     if overlap < 3 or overlap >= size:
         raise ConfigError(
             f"window overlap {overlap} must be at least 3 and under the window size {size} "
@@ -33,10 +37,11 @@ def plan_windows(keyframes: list[int], size: int, overlap: int) -> WindowPlan:
     n = len(keyframes)
     if n <= size:
         return WindowPlan(size=size, overlap=overlap, windows=[list(keyframes)])
-    step = size - overlap
-    starts = list(range(0, n - size + 1, step))
-    if starts[-1] + size < n:  # the tail: one more full window ending at the last keyframe
-        starts.append(n - size)
+    count = math.ceil((n - overlap) / (size - overlap))
+    length = math.ceil((n + (count - 1) * overlap) / count)
+    starts = np.linspace(0, n - length, count).round().astype(int)
     return WindowPlan(
-        size=size, overlap=overlap, windows=[list(keyframes[a : a + size]) for a in starts]
+        size=size,
+        overlap=overlap,
+        windows=[list(keyframes[a : a + length]) for a in starts],
     )
