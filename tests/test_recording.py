@@ -122,3 +122,39 @@ def test_a_withdrawal_through_windows_matches_the_truth_and_one_window(
     before = [len(list((w / "runs").glob("*.json"))) for w in windows]
     assert main([*args, "--window", "14", "--overlap", "5"]) == 0
     assert [len(list((w / "runs").glob("*.json"))) for w in windows] == before
+
+
+def test_a_frame_between_keyframes_registers_on_their_depth(withdrawal: Path) -> None:
+    """Registration alone, on exact depth: the frames between two keyframes 4 frames apart
+    (about 1.5 mm) land within 0.1 mm of their true poses; a washed-out frame does not
+    register."""
+    import cv2
+
+    from endopipe.commands.recording.frames import Reference, register
+    from endopipe.stages.camera import Camera
+
+    camera = Camera.load(withdrawal / "intrinsics.json")
+    poses = json.loads((withdrawal / "gt" / "poses.json").read_text())["poses"]
+    events = json.loads((withdrawal / "gt" / "synth.json").read_text())["events"]
+
+    def grey(i: int) -> np.ndarray:
+        return cv2.imread(str(withdrawal / "frames" / f"{i:06d}.png"), cv2.IMREAD_GRAYSCALE)
+
+    def ref(i: int) -> Reference:
+        return Reference(
+            grey(i), np.load(withdrawal / "gt" / "depth" / f"{i:06d}.npy"), np.array(poses[i])
+        )
+
+    spoiled = set(events["blurred"]) | set(events["washed_out"]) | set(events["paused"])
+    a = next(i for i in range(10, 100) if not spoiled & set(range(i, i + 5)))
+    errors = []
+    for f in range(a + 1, a + 4):
+        c2w, inliers = register(grey(f), [ref(a), ref(a + 4)], camera)
+        assert c2w is not None and inliers >= 30
+        errors.append(np.linalg.norm(c2w[:3, 3] - np.array(poses[f])[:3, 3]))
+    step = np.linalg.norm(np.array(poses[a + 4])[:3, 3] - np.array(poses[a])[:3, 3]) / 4
+    print(f"registration error {np.max(errors):.4f} mm, step {step:.3f} mm")
+    assert max(errors) < 0.1  # mm; measured 0.027-0.042 (a step: 0.37 mm, the radius 14 mm)
+    washed = events["washed_out"][0]
+    c2w, _ = register(grey(washed), [ref(washed - 1)], camera)
+    assert c2w is None

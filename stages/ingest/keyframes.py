@@ -95,7 +95,7 @@ class KeyframeSelector:
         small = self._small(grey)
         if self._prev is None:
             return self._keep(small)
-        pts, ok = self._track(self._prev, small, self._pts)
+        pts, ok = track_corners(self._prev, small, self._pts)
         if ok.sum() < max(8.0, self.cfg.min_tracked * self._found):
             return self._keep(small)  # the view changed past tracking (or has no corners)
         step = np.median(np.linalg.norm(pts[ok] - self._pts[ok], axis=-1)) / self._diag
@@ -119,18 +119,19 @@ class KeyframeSelector:
         self._prev, self._key_pts = small, found.astype(np.float32)
         self._pts, self._found = self._key_pts.copy(), len(found)
 
-    def _track(
-        self, a: np.ndarray, b: np.ndarray, pts: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Corners `pts` of grey `a` found in grey `b`, and which were found both ways
-        (forward-backward error under half a pixel)."""
-        if len(pts) == 0:
-            return pts, np.zeros(0, bool)
-        fwd, st1, _ = cv2.calcOpticalFlowPyrLK(a, b, pts, None, winSize=(15, 15), maxLevel=3)
-        back, st2, _ = cv2.calcOpticalFlowPyrLK(b, a, fwd, None, winSize=(15, 15), maxLevel=3)
-        err = np.linalg.norm((back - pts).reshape(-1, 2), axis=-1)
-        ok = (st1.reshape(-1) == 1) & (st2.reshape(-1) == 1) & (err < 0.5)
-        return fwd, ok
+
+def track_corners(
+    a: np.ndarray, b: np.ndarray, pts: np.ndarray, max_error_px: float = 0.5
+) -> tuple[np.ndarray, np.ndarray]:
+    """Corners `pts` (N, 1, 2) float32 of grey `a` found in grey `b` by pyramidal Lucas-Kanade,
+    and which were found both ways (forward-backward error under `max_error_px`)."""
+    if len(pts) == 0:
+        return pts, np.zeros(0, bool)
+    fwd, st1, _ = cv2.calcOpticalFlowPyrLK(a, b, pts, None, winSize=(15, 15), maxLevel=3)
+    back, st2, _ = cv2.calcOpticalFlowPyrLK(b, a, fwd, None, winSize=(15, 15), maxLevel=3)
+    err = np.linalg.norm((back - pts).reshape(-1, 2), axis=-1)
+    ok = (st1.reshape(-1) == 1) & (st2.reshape(-1) == 1) & (err < max_error_px)
+    return fwd, ok
 
 
 def keyframes_on(cfg: KeyframeConfig, input_frames: int | None) -> bool:

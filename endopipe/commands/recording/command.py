@@ -13,6 +13,7 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
+import cv2
 import numpy as np
 from pydantic import BaseModel, Field
 from rich.console import Console
@@ -67,6 +68,11 @@ class RecordingSummary(BaseModel):
     reasons: list[str] = []
     ate_percent_of_path: float | None = None  # joined trajectory against the truth (segment 0)
     ate_frames: int | None = None
+    frames: int | None = None  # frames from segment 0's first keyframe to its last
+    frames_posed: int | None = None  # of them, posed (keyframes, and frames registered)
+    depth_abs_rel_all_frames: float | None = None  # median-scaled, every posed frame with truth
+    depth_abs_rel_keyframes: float | None = None  # the same over the keyframes alone
+    depth_frames_scored: int | None = None
     mesh_frames: int | None = None  # keyframes fused into recording/mesh.ply (segment 0)
     chamfer_pct_radius: float | None = None  # the fused mesh against the ground-truth mesh
     off_seen_pct: float | None = None  # share of the mesh far from any surface a camera saw
@@ -116,7 +122,7 @@ def run_recording(
     windows_dir.mkdir(exist_ok=True)
     console.print(
         f"[bold]{escape(info.name)}[/bold]: a recording of {len(keyframes)} keyframes in "
-        f"{len(plan.windows)} windows of {plan.size} ({plan.overlap} shared), "
+        f"{len(plan.windows)} windows of {len(plan.windows[0])} ({plan.overlap} or more shared), "
         f"{options.executor} executor"
     )
     tasks = [
@@ -153,10 +159,15 @@ def run_recording(
     joined = join_windows([plan.name(k) for k in range(len(plan.windows))], poses, plan.windows)
     truth = _truth_poses(ingest)
     summary = summarise(plan, rows, joined, truth)
+    staging = case_dir / f".{RECORDING_DIR}.tmp"
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir()
+    if until is None or pipe.index(until) >= pipe.index("depth"):
+        all_frames(pipe, info, windows_dir, joined, configs, ingest, staging, summary, console)
     mesh = None
     if until is None or pipe.index(until) >= pipe.index("mesh"):
         mesh = one_mesh(pipe, windows_dir, joined, configs, ingest, truth, summary)
-    _publish(case_dir, plan, joined, summary, mesh)
+    _publish(case_dir, staging, plan, joined, summary, mesh)
     _print_summary(console, summary, joined, case_dir)
     return summary
 
@@ -227,6 +238,74 @@ def _int(value: float | None) -> int | None:
     return None if value is None else int(value)
 
 
+def all_frames(
+    pipe: Pipeline,
+    info: CaseInfo,
+    windows_dir: Path,
+    joined: Joined,
+    configs: dict[str, StageConfig],
+    ingest,
+    staging: Path,
+    summary: RecordingSummary,
+    console: Console,
+) -> None:
+    """Every frame between the keyframes posed and given a depth map (recording/depth/, in
+    segment 0's units), frames.json written, and the depth scored on all of them."""
+    from rich.progress import Progress
+
+    from endopipe.commands.recording.frames import every_frame
+    from endopipe.stages.ingest.selection import resize
+    from endopipe.stages.io.sources import open_input
+    from endopipe.stages.metrics.depth import depth_frame_metrics
+
+    intrinsics = Path(info.intrinsics_file) if info.intrinsics_file else None
+    source = open_input(Path(info.input), intrinsics, format=info.kind)
+    size = (ingest.width, ingest.height)
+    (staging / "depth").mkdir()
+    gt = None
+    try:
+        gt = ingest.ground_truth()
+    except InputError:
+        pass
+    scores: dict[int, float] = {}
+    fov = ingest.fov()
+
+    def write_depth(i: int, depth: np.ndarray) -> None:
+        np.save(staging / "depth" / f"{i:06d}.npy", depth)
+        truth = gt.depth(i) if gt is not None else None
+        if truth is None:
+            return
+        if truth.shape != depth.shape:
+            truth = cv2.resize(truth, size, interpolation=cv2.INTER_NEAREST)
+        m = depth_frame_metrics(depth, truth.astype(np.float32), fov)
+        if np.isfinite(m["abs_rel"]):
+            scores[i] = m["abs_rel"]
+
+    frames_in = ((f.source_index, resize(f.rgb, size)) for f in source.frames())
+    seg = [f.source_index for f in joined.frames if f.segment == 0]
+    total = (max(seg) - min(seg) + 1) if seg else 0
+    with Progress(console=console, transient=True) as bar:
+        task = bar.add_task("every frame", total=total)
+        poses = every_frame(
+            pipe,
+            frames_in,
+            windows_dir,
+            joined,
+            configs["depth"],
+            write_depth,
+            lambda: bar.advance(task),
+        )
+    write_json(staging / "frames.json", {"frames": [p.model_dump(mode="json") for p in poses]})
+    summary.frames = len(poses)
+    summary.frames_posed = sum(p.c2w is not None for p in poses)
+    if scores:
+        keys = {p.source_index for p in poses if p.kind == "keyframe"}
+        summary.depth_abs_rel_all_frames = float(np.mean(list(scores.values())))
+        on_keys = [v for i, v in scores.items() if i in keys]
+        summary.depth_abs_rel_keyframes = float(np.mean(on_keys)) if on_keys else None
+        summary.depth_frames_scored = len(scores)
+
+
 def one_mesh(
     pipe: Pipeline,
     windows_dir: Path,
@@ -282,13 +361,15 @@ def one_mesh(
 
 
 def _publish(
-    case_dir: Path, plan: WindowPlan, joined: Joined, summary: RecordingSummary, mesh=None
+    case_dir: Path,
+    tmp: Path,
+    plan: WindowPlan,
+    joined: Joined,
+    summary: RecordingSummary,
+    mesh=None,
 ) -> None:
-    """recording/ written whole into a temporary folder, then renamed into place."""
+    """recording/ written whole into the temporary folder `tmp`, then renamed into place."""
     final = case_dir / RECORDING_DIR
-    tmp = case_dir / f".{RECORDING_DIR}.tmp"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
     if mesh is not None:
         from endopipe.stages.mesh.view import save_mesh
 
@@ -329,6 +410,12 @@ def _print_summary(
         if summary.ate_percent_of_path is not None
         else ""
     )
+    if summary.depth_abs_rel_all_frames is not None:
+        ate += (
+            f"; {summary.frames_posed} of {summary.frames} frames posed, depth AbsRel "
+            f"{summary.depth_abs_rel_all_frames:.4f} over {summary.depth_frames_scored} frames "
+            f"(keyframes alone {summary.depth_abs_rel_keyframes:.4f})"
+        )
     if summary.chamfer_pct_radius is not None:
         ate += (
             f"; one mesh of {summary.mesh_frames} keyframes: Chamfer "

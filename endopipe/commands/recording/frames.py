@@ -1,0 +1,178 @@
+"""A pose and a depth map for every frame of a recording, not only its keyframes.
+
+A frame between two keyframes is registered against the window that posed them: corners of
+each neighbouring keyframe that the window's depth map places in 3D are tracked into the frame
+(Lucas-Kanade, forward-backward checked), and its pose is the PnP fit of those 2D-3D matches
+(OpenCV, RANSAC, started at the keyframe's pose). Its depth is then rendered from that window's
+field, as the depth stage renders a keyframe's. A frame that does not register (washed out, too
+few tracked corners) gets no pose and no depth: unknown, never interpolated.
+
+Frames stream from the input once, in order; one window's baked field is held at a time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from pydantic import BaseModel
+
+from endopipe.commands.recording.join import Joined
+from endopipe.pipeline.runner import Pipeline
+from endopipe.stages.camera import Camera, pixel_directions
+from endopipe.stages.ingest.keyframes import track_corners
+
+MIN_INLIERS = 30
+
+
+class FramePose(BaseModel):
+    """recording/frames.json: one line per frame from the first keyframe to the last."""
+
+    source_index: int
+    window: str | None
+    kind: str  # keyframe | registered | unregistered
+    inliers: int | None = None
+    c2w: list[list[float]] | None = None  # segment 0's frame and units
+
+
+@dataclass
+class Reference:
+    """A keyframe as seen by its window: grey image, depth (window units), pose (window frame)."""
+
+    grey: np.ndarray
+    depth: np.ndarray
+    c2w: np.ndarray
+
+
+class WindowSight:
+    """One window's keyframes, camera and field, loaded when a frame first needs them."""
+
+    def __init__(self, pipe: Pipeline, folder: Path, depth_cfg: Any, scale: float) -> None:
+        from endopipe.stages.depth.stage import make_renderer
+        from endopipe.stages.mesh.inputs import valid_depth
+        from endopipe.stages.nerf.render import pick_device
+
+        self.ingest = pipe.view(folder, "ingest")
+        poses = pipe.view(folder, "poses")
+        nerf = pipe.view(folder, "nerf")
+        self.depth_view = pipe.view(folder, "depth")
+        self.camera: Camera = poses.intrinsics
+        if (self.camera.width, self.camera.height) != (self.ingest.width, self.ingest.height):
+            self.camera = self.camera.scaled(self.ingest.width, self.ingest.height)
+        self.c2w = nerf.c2w(poses)
+        self.index = {f.source_index: f.index for f in self.ingest.frames}
+        self.scale = scale
+        model = nerf.model(pick_device(depth_cfg.device))
+        prior = pipe.view(folder, "centerline").prior()
+        c2ws = [self.c2w[i] for i in poses.registered]
+        self.render = make_renderer(depth_cfg, model, prior, c2ws, self.camera, nerf)
+        self._valid_depth = valid_depth
+
+    def reference(self, source_index: int) -> Reference | None:
+        i = self.index.get(source_index)
+        if i is None or i not in self.c2w or not self.depth_view.has_depth(i):
+            return None
+        grey = cv2.cvtColor(self.ingest.image(i), cv2.COLOR_RGB2GRAY)
+        return Reference(grey, self._valid_depth(self.depth_view, i, 0.5), self.c2w[i])
+
+
+def register(grey: np.ndarray, refs: list[Reference], camera: Camera) -> tuple[Any, int]:
+    """The frame's c2w in the references' frame (None: it does not register) and the inliers."""
+    obj, img = [], []
+    for ref in refs:
+        usable = ((ref.depth > 0) * 255).astype(np.uint8)
+        corners = cv2.goodFeaturesToTrack(ref.grey, 400, 0.01, 5, mask=usable)
+        if corners is None:
+            continue
+        found, ok = track_corners(ref.grey, grey, corners.astype(np.float32), 1.0)
+        if not ok.any():
+            continue
+        uv = corners.reshape(-1, 2)[ok]
+        z = ref.depth[uv[:, 1].round().astype(int), uv[:, 0].round().astype(int)]
+        keep = z > 0
+        d = pixel_directions(camera, uv[keep, 0], uv[keep, 1]) * z[keep, None]
+        obj.append(d @ ref.c2w[:3, :3].T + ref.c2w[:3, 3])
+        seen = found.reshape(-1, 2)[ok][keep]
+        img.append(pixel_directions(camera, seen[:, 0], seen[:, 1])[:, :2])
+    if not obj or sum(len(o) for o in obj) < MIN_INLIERS:
+        return None, 0
+    obj_pts, img_pts = np.concatenate(obj), np.concatenate(img)
+    w2c = np.linalg.inv(refs[0].c2w)
+    rvec, _ = cv2.Rodrigues(w2c[:3, :3])
+    tvec = w2c[:3, 3].reshape(3, 1).copy()
+    ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+        obj_pts,
+        img_pts,
+        np.eye(3),
+        None,
+        rvec,
+        tvec,
+        useExtrinsicGuess=True,
+        reprojectionError=1.5 / camera.fx,
+        iterationsCount=200,
+    )
+    if not ok or inliers is None or len(inliers) < MIN_INLIERS:
+        return None, 0 if inliers is None else len(inliers)
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = cv2.Rodrigues(rvec)[0], tvec.reshape(3)
+    return np.linalg.inv(out), len(inliers)
+
+
+def every_frame(
+    pipe: Pipeline,
+    frames_in: Iterator[tuple[int, np.ndarray]],
+    windows_dir: Path,
+    joined: Joined,
+    depth_cfg: Any,
+    write_depth: Callable[[int, np.ndarray], None],
+    progress: Callable[[], None] = lambda: None,
+) -> list[FramePose]:
+    """Pose (and, through `write_depth`, the depth map in segment 0's units) of every frame
+    from `frames_in` ((source_index, RGB at the working size)) between segment 0's first and
+    last keyframes."""
+    keys = {f.source_index: f for f in joined.frames if f.segment == 0}
+    order = sorted(keys)
+    if not order:
+        return []
+    sights: dict[str, WindowSight] = {}
+    out: list[FramePose] = []
+    for source_index, rgb in frames_in:
+        if source_index < order[0] or source_index > order[-1]:
+            continue
+        progress()
+        before = order[np.searchsorted(order, source_index, side="right") - 1]
+        after = order[min(np.searchsorted(order, source_index), len(order) - 1)]
+        name = keys[before].window
+        if name not in sights:
+            sights.clear()  # one window's field in memory at a time
+            sights[name] = WindowSight(pipe, windows_dir / name, depth_cfg, joined.windows[name].s)
+        sight = sights[name]
+        sim = joined.windows[name]
+        if source_index in keys and keys[source_index].window == name:
+            c2w, kind, inliers = sight.c2w[sight.index[source_index]], "keyframe", None
+        else:
+            refs = [r for k in {before, after} if (r := sight.reference(k)) is not None]
+            grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+            c2w, inliers = register(grey, refs, sight.camera) if refs else (None, 0)
+            kind = "registered" if c2w is not None else "unregistered"
+        if c2w is None:
+            out.append(
+                FramePose(source_index=source_index, window=name, kind=kind, inliers=inliers)
+            )
+            continue
+        depth = sight.render(sight.camera, c2w, None, colour=False)["depth"]
+        write_depth(source_index, (depth * np.float32(sim.s)).astype(np.float32))
+        out.append(
+            FramePose(
+                source_index=source_index,
+                window=name,
+                kind=kind,
+                inliers=inliers,
+                c2w=sim.pose(c2w).tolist(),
+            )
+        )
+    return out
