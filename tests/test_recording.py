@@ -158,3 +158,37 @@ def test_a_frame_between_keyframes_registers_on_their_depth(withdrawal: Path) ->
     washed = events["washed_out"][0]
     c2w, _ = register(grey(washed), [ref(washed - 1)], camera)
     assert c2w is None
+
+
+def test_sigkill_mid_recording_reruns_only_unfinished_windows(
+    withdrawal: Path, tmp_path: Path
+) -> None:
+    """The whole process group (the run and its window worker) killed once the first window is
+    done: the same command then runs the other windows only."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    wd = tmp_path / "wd"
+    cmd = [sys.executable, "-m", "endopipe", "run", str(withdrawal), "--workdir", str(wd)]
+    cmd += ["--until", "poses", "--quiet", "--set", "ingest.keyframes.mode=content"]
+    cmd += ["--window", "14", "--overlap", "5"]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
+    windows = wd / "withdrawal" / "windows"
+    deadline = time.time() + 300
+    while not (windows / "w000" / "02_poses" / "manifest.json").is_file():
+        assert proc.poll() is None and time.time() < deadline, "the first window never finished"
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not (wd / "withdrawal" / "recording").exists()
+    runs_w0 = len(list((windows / "w000" / "runs").glob("*.json")))
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert len(list((windows / "w000" / "runs").glob("*.json"))) == runs_w0  # not run again
+    summary = json.loads((wd / "withdrawal" / "recording" / "summary.json").read_text())
+    assert all(w["status"] == "ok" for w in summary["windows"]) and summary["segments"] == 1

@@ -162,11 +162,27 @@ def run_recording(
     staging = case_dir / f".{RECORDING_DIR}.tmp"
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir()
+    frames = None
     if until is None or pipe.index(until) >= pipe.index("depth"):
-        all_frames(pipe, info, windows_dir, joined, configs, ingest, staging, summary, console)
+        frames = all_frames(
+            pipe, info, windows_dir, joined, configs, ingest, staging, summary, console
+        )
     mesh = None
     if until is None or pipe.index(until) >= pipe.index("mesh"):
         mesh = one_mesh(pipe, windows_dir, joined, configs, ingest, truth, summary)
+    from endopipe.commands.recording.report import write_report
+
+    write_report(
+        staging / "report.html",
+        info.name,
+        summary,
+        plan,
+        joined,
+        [f.source_index for f in ingest.frames],
+        ingest.file.dropped_frames,
+        frames,
+        truth,
+    )
     _publish(case_dir, staging, plan, joined, summary, mesh)
     _print_summary(console, summary, joined, case_dir)
     return summary
@@ -248,7 +264,7 @@ def all_frames(
     staging: Path,
     summary: RecordingSummary,
     console: Console,
-) -> None:
+) -> list[dict]:
     """Every frame between the keyframes posed and given a depth map (recording/depth/, in
     segment 0's units), frames.json written, and the depth scored on all of them."""
     from rich.progress import Progress
@@ -295,7 +311,8 @@ def all_frames(
             write_depth,
             lambda: bar.advance(task),
         )
-    write_json(staging / "frames.json", {"frames": [p.model_dump(mode="json") for p in poses]})
+    rows = [p.model_dump(mode="json") for p in poses]
+    write_json(staging / "frames.json", {"frames": rows})
     summary.frames = len(poses)
     summary.frames_posed = sum(p.c2w is not None for p in poses)
     if scores:
@@ -304,6 +321,7 @@ def all_frames(
         on_keys = [v for i, v in scores.items() if i in keys]
         summary.depth_abs_rel_keyframes = float(np.mean(on_keys)) if on_keys else None
         summary.depth_frames_scored = len(scores)
+    return rows
 
 
 def one_mesh(

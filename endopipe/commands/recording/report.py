@@ -1,0 +1,183 @@
+"""recording/report.html: the recording on one self-contained page, with the report stage's
+kit (templates, styles): a timeline of every frame (kept, dropped by reason, registered or not)
+under the windows and their junctions, the windows' table with links to their own reports, the
+joined trajectory against the truth, and the scores."""
+
+from __future__ import annotations
+
+import datetime as dt
+import io
+from pathlib import Path
+
+import numpy as np
+from markupsafe import Markup, escape
+
+from endopipe.commands.recording.join import Joined
+from endopipe.commands.recording.windows import WindowPlan
+
+REASON_COLOURS = {
+    "kept": "#2e7d32",
+    "little_motion": "#c8e6c9",
+    "still": "#90a4ae",
+    "blurred": "#ef6c00",
+    "washed_out": "#fdd835",
+    "blank": "#000000",
+    "duplicate": "#b0bec5",
+}
+
+
+def _png(fig) -> Markup:
+    import base64
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    uri = "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
+    return Markup(f'<img src="{uri}" style="max-width:100%">')
+
+
+def timeline(
+    kept: list[int],
+    dropped: dict[str, list[int]],
+    plan: WindowPlan,
+    joined: Joined,
+    frames: list[dict] | None,
+) -> Markup:
+    """Frames along x: what ingest did with each, the windows, and which frames got a pose."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(11, 2.6))
+    rows = {"kept": kept, **dropped}
+    for reason, idx in rows.items():
+        if idx:
+            ax.vlines(
+                idx, 2.6, 3.4, color=REASON_COLOURS.get(reason, "#7b1fa2"), lw=1, label=reason
+            )
+    errors = {j.b: j for j in joined.junctions}
+    for k, w in enumerate(plan.windows):
+        name = plan.name(k)
+        y = 1.5 + 0.35 * (k % 2)
+        colour = "#1565c0" if name in joined.windows else "#c62828"
+        ax.plot([w[0], w[-1]], [y, y], color=colour, lw=5, solid_capstyle="butt")
+        j = errors.get(name)
+        label = name if j is None or j.error_pct is None else f"{name} ({j.error_pct:.2f}%)"
+        ax.text(w[0], y + 0.18, label, fontsize=7)
+    if frames:
+        posed = [f["source_index"] for f in frames if f["c2w"] is not None]
+        lost = [f["source_index"] for f in frames if f["c2w"] is None]
+        ax.vlines(posed, 0.3, 0.9, color="#1565c0", lw=0.6, label="posed")
+        ax.vlines(lost, 0.3, 0.9, color="#c62828", lw=1, label="no pose")
+    ax.set_yticks([0.6, 1.7, 3.0], ["frames posed", "windows", "ingest"])
+    ax.set_xlabel("frame of the input")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.35), ncol=8, fontsize=7, frameon=False)
+    ax.set_ylim(0, 3.8)
+    out = _png(fig)
+    plt.close(fig)
+    return out
+
+
+def trajectory_figure(joined: Joined, truth: list[np.ndarray] | None) -> Markup:
+    """The joined cameras seen from above (x, z), with the truth aligned onto them."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from endopipe.stages.camera.transforms import umeyama
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for seg in range(joined.segments):
+        c = np.array([f.c2w for f in joined.frames if f.segment == seg])[:, :3, 3]
+        ax.plot(c[:, 0], c[:, 2], ".-", ms=2, lw=0.8, label=f"joined, segment {seg}")
+    if truth is not None:
+        ids = [
+            f.source_index for f in joined.frames if f.segment == 0 and f.source_index < len(truth)
+        ]
+        if len(ids) >= 3:
+            est = np.array([f.c2w for f in joined.frames if f.source_index in set(ids)])[:, :3, 3]
+            gt = np.array([truth[i][:3, 3] for i in ids])
+            s, r, t = umeyama(gt, est)
+            g = s * gt @ r.T + t
+            ax.plot(g[:, 0], g[:, 2], "k--", lw=0.8, label="truth (aligned)")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x")
+    ax.set_ylabel("z")
+    ax.legend(fontsize=7)
+    out = _png(fig)
+    plt.close(fig)
+    return out
+
+
+def write_report(
+    path: Path,
+    name: str,
+    summary,
+    plan: WindowPlan,
+    joined: Joined,
+    kept: list[int],
+    dropped: dict[str, list[int]],
+    frames: list[dict] | None,
+    truth: list[np.ndarray] | None,
+) -> None:
+    from endopipe import __version__
+    from endopipe.stages.report.kit import fmt, page
+
+    verdict = "ok" if summary.verdict == "ok" else "doubtful"
+    reasons = "".join(f"<li>{escape(r)}</li>" for r in summary.reasons)
+    scores = [
+        ("keyframes / windows", f"{summary.keyframes} / {len(plan.windows)}"),
+        ("segments", str(summary.segments)),
+        ("ATE, joined trajectory (% of path)", fmt(summary.ate_percent_of_path)),
+        ("frames posed", f"{summary.frames_posed} of {summary.frames}" if summary.frames else "—"),
+        ("depth AbsRel, every posed frame", fmt(summary.depth_abs_rel_all_frames)),
+        ("depth AbsRel, keyframes", fmt(summary.depth_abs_rel_keyframes)),
+        ("one mesh: Chamfer (% of radius)", fmt(summary.chamfer_pct_radius)),
+        ("one mesh: off the seen surface (%)", fmt(summary.off_seen_pct)),
+    ]
+    table = "".join(f"<tr><th>{escape(k)}</th><td>{v}</td></tr>" for k, v in scores)
+    head = (
+        f'<p class="verdict {"ok" if verdict == "ok" else ""}"><b>{verdict}</b></p>'
+        f"<ul>{reasons}</ul><table class='kv'>{table}</table>"
+        "<p class='muted'>Depth AbsRel is median-scaled per frame against the truth; each "
+        "window's report shows it beside the guesses that look at no geometry.</p>"
+    )
+    junction = {j.b: j for j in joined.junctions}
+    rows = []
+    for w in summary.windows:
+        j = junction.get(w.name)
+        jtext = "" if j is None else (fmt(j.error_pct, "%") if j.joined else escape(j.reason))
+        link = f'<a href="../windows/{w.name}/07_report/report.html">{w.name}</a>'
+        rows.append(
+            f"<tr><td>{link}</td><td>{w.frames}</td><td>{escape(w.status)}</td>"
+            f"<td>{escape(w.pose_verdict)}</td><td>{fmt(w.registered)}</td>"
+            f"<td>{fmt(w.depth_abs_rel)}</td><td>{jtext}</td></tr>"
+        )
+    windows = (
+        "<table><tr><th>window</th><th>keyframes</th><th>status</th><th>poses</th>"
+        "<th>registered</th><th>depth AbsRel</th><th>junction</th></tr>"
+        + "".join(rows)
+        + "</table>"
+    )
+    html = page(
+        title=f"endopipe recording: {name}",
+        subtitle=f"{summary.keyframes} keyframes in {len(plan.windows)} windows",
+        generated=dt.datetime.now().strftime("%Y-%m-%d %H:%M"),
+        version=__version__,
+        sections=[
+            {"key": "summary", "title": "Summary", "body": head},
+            {
+                "key": "timeline",
+                "title": "Timeline",
+                "body": timeline(kept, dropped, plan, joined, frames),
+            },
+            {"key": "windows", "title": "Windows", "body": windows},
+            {
+                "key": "trajectory",
+                "title": "Trajectory",
+                "body": trajectory_figure(joined, truth),
+            },
+        ],
+    )
+    path.write_text(html)
