@@ -78,3 +78,38 @@ def test_ctrl_c_mid_stage_exits_130_with_one_line_and_the_rerun_resumes(tmp_path
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     assert len(list((wd / "long" / "01_ingest" / "frames").glob("*.png"))) == 240
+
+
+def test_a_local_worker_ends_with_the_process_that_started_it(tmp_path: Path) -> None:
+    """SIGKILL to a batch-like parent only (not its group): its worker process must not run on
+    as an orphan."""
+    script = tmp_path / "parent.py"
+    marker = tmp_path / "worker.pid"
+    script.write_text(
+        "import os, sys, time\n"
+        "from endopipe.pipeline.executors import local_executor\n"
+        "def work(path):\n"
+        "    open(path, 'w').write(str(os.getpid()))\n"
+        "    time.sleep(120)\n"
+        "if __name__ == '__main__':\n"
+        "    ex = local_executor(1, 1)\n"
+        f"    ex.submit(work, {str(marker)!r})\n"
+        "    time.sleep(120)\n"
+    )
+    proc = subprocess.Popen([sys.executable, str(script)], cwd=tmp_path)
+    deadline = time.time() + 60
+    while not marker.is_file() or not marker.read_text():
+        assert time.time() < deadline, "the worker never started"
+        time.sleep(0.05)
+    worker = int(marker.read_text())
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    deadline = time.time() + 10
+    while time.time() < deadline:
+        try:
+            os.kill(worker, 0)
+        except ProcessLookupError:
+            return
+        time.sleep(0.1)
+    os.kill(worker, signal.SIGKILL)
+    raise AssertionError("the worker outlived its parent by 10 s")
