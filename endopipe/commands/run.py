@@ -98,7 +98,17 @@ def run_case(
         )
         if is_recording(pipe, case_dir, recording):
             print_record(first, case_dir)
-            run_recording(pipe, case_fn, case_dir, configs, recording, until=until, console=console)
+            run_recording(
+                pipe,
+                case_fn,
+                case_dir,
+                configs,
+                recording,
+                until=until,
+                console=console,
+                from_stage=from_stage,
+                force=force,
+            )
             return
     record = pipe.run(
         case_dir,

@@ -55,13 +55,24 @@ def process_case(
         row.gt_kind = gt.kind if gt is not None else ""
         row.failed_stage = None
         if task.check_only:
-            if not _all_fresh(pipe, case_dir, path, source, configs, task.until):
+            if (
+                task.force
+                or task.from_stage
+                or not _all_fresh(pipe, case_dir, path, source, configs, task.until)
+            ):
                 row.status = "pending"
                 return row
             row.stages_cached = selected
         else:
             case_dir = prepare_case(path, workdir, task.name, intrinsics, task.reader)
-            record = pipe.run(case_dir, configs, until=task.until, quiet=True)
+            record = pipe.run(
+                case_dir,
+                configs,
+                until=task.until,
+                from_stage=task.from_stage,
+                force=task.force,
+                quiet=True,
+            )
             row.stages_ran = [s.stage for s in record.stages if s.status == "ran"]
             row.stages_cached = [s.stage for s in record.stages if s.status == "cached"]
         manifests = {n: m for n in selected if (m := pipe.manifest(case_dir, n)) is not None}

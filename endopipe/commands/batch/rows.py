@@ -19,6 +19,8 @@ class CaseTask(BaseModel):
     configs: dict[str, dict[str, Any]]
     until: str | None = None
     intrinsics: str | None = None  # intrinsics.json for the input's frames (--intrinsics)
+    from_stage: str | None = None  # re-run from this stage (--from), fresh or not
+    force: bool = False  # ignore the cache (--force)
     threads: int | None = None
     check_only: bool = False  # only report whether every stage is already fresh
 

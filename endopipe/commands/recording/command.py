@@ -112,6 +112,8 @@ def run_recording(
     *,
     until: str | None,
     console: Console,
+    from_stage: str | None = None,
+    force: bool = False,
 ) -> RecordingSummary:
     """Cut, run every window, join; writes <case>/recording/ and prints a table."""
     info = CaseInfo.load(case_dir)
@@ -134,6 +136,8 @@ def run_recording(
             configs=window_configs(configs, frames),
             until=until,
             intrinsics=info.intrinsics_file,
+            from_stage=from_stage,
+            force=force,
         )
         for k, frames in enumerate(plan.windows)
     ]
