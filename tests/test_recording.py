@@ -160,6 +160,7 @@ def test_a_frame_between_keyframes_registers_on_their_depth(withdrawal: Path) ->
     assert c2w is None
 
 
+@pytest.mark.slow
 def test_sigkill_mid_recording_reruns_only_unfinished_windows(
     withdrawal: Path, tmp_path: Path
 ) -> None:
@@ -192,3 +193,31 @@ def test_sigkill_mid_recording_reruns_only_unfinished_windows(
     assert len(list((windows / "w000" / "runs").glob("*.json"))) == runs_w0  # not run again
     summary = json.loads((wd / "withdrawal" / "recording" / "summary.json").read_text())
     assert all(w["status"] == "ok" for w in summary["windows"]) and summary["segments"] == 1
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("executor", ["ray", "slurm"])
+def test_windows_on_ray_and_submitit_give_the_local_trajectory(
+    withdrawal: Path, tmp_path: Path, executor: str
+) -> None:
+    """Each window a Ray task (a local cluster, 2 workers) or a submitit job (its local
+    executor): the joined trajectory's ATE within 0.1 point of the local executor's."""
+    pytest.importorskip("ray" if executor == "ray" else "submitit")
+    args = ["--until", "poses", "--quiet", "--set", "ingest.keyframes.mode=content"]
+    args += ["--window", "14", "--overlap", "5"]
+    truth = json.loads((withdrawal / "gt" / "poses.json").read_text())["poses"]
+    truth = {i: np.array(p) for i, p in enumerate(truth)}
+
+    def ate(wd: Path, *extra: str) -> float:
+        assert main(["run", str(withdrawal), "--workdir", str(wd), *args, *extra]) == 0
+        return pose_metrics(_trajectory(wd / "withdrawal"), truth)["ate_percent_of_path"]
+
+    local = ate(tmp_path / "local", "--jobs", "2")
+    extra = ["--executor", executor, "--jobs", "2"]
+    if executor == "slurm":
+        cfg = tmp_path / "cluster.yaml"
+        cfg.write_text("slurm:\n  cluster: local\n  gpus_per_node: 0\n  cpus_per_task: 1\n")
+        extra += ["--cluster-config", str(cfg)]
+    other = ate(tmp_path / executor, *extra)
+    print(f"ATE local {local:.3f}%, {executor} {other:.3f}%")
+    assert abs(other - local) <= 0.1

@@ -79,7 +79,8 @@ def timeline(
 
 
 def trajectory_figure(joined: Joined, truth: list[np.ndarray] | None) -> Markup:
-    """The joined cameras seen from above (x, z), with the truth aligned onto them."""
+    """The joined camera centres, each coordinate against the path's main axis, with the
+    truth aligned onto them (a similarity) where there is one."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -87,24 +88,31 @@ def trajectory_figure(joined: Joined, truth: list[np.ndarray] | None) -> Markup:
 
     from endopipe.stages.camera.transforms import umeyama
 
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for seg in range(joined.segments):
-        c = np.array([f.c2w for f in joined.frames if f.segment == seg])[:, :3, 3]
-        ax.plot(c[:, 0], c[:, 2], ".-", ms=2, lw=0.8, label=f"joined, segment {seg}")
+    segs = [
+        np.array([f.c2w for f in joined.frames if f.segment == k])[:, :3, 3]
+        for k in range(joined.segments)
+    ]
+    everything = np.concatenate(segs)
+    centre = everything.mean(0)
+    _, _, axes = np.linalg.svd(everything - centre)  # along the path first
+    fig, panels = plt.subplots(2, 1, figsize=(10, 4), sharex=True)
+    for k, c in enumerate(segs):
+        q = (c - centre) @ axes.T
+        for j, ax in enumerate(panels):
+            ax.plot(q[:, 0], q[:, j + 1], ".-", ms=2, lw=0.8, label=f"joined, segment {k}")
     if truth is not None:
-        ids = [
-            f.source_index for f in joined.frames if f.segment == 0 and f.source_index < len(truth)
-        ]
-        if len(ids) >= 3:
-            est = np.array([f.c2w for f in joined.frames if f.source_index in set(ids)])[:, :3, 3]
-            gt = np.array([truth[i][:3, 3] for i in ids])
+        first = [f for f in joined.frames if f.segment == 0 and f.source_index < len(truth)]
+        if len(first) >= 3:
+            est = np.array([f.c2w for f in first])[:, :3, 3]
+            gt = np.array([truth[f.source_index][:3, 3] for f in first])
             s, r, t = umeyama(gt, est)
-            g = s * gt @ r.T + t
-            ax.plot(g[:, 0], g[:, 2], "k--", lw=0.8, label="truth (aligned)")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x")
-    ax.set_ylabel("z")
-    ax.legend(fontsize=7)
+            q = (s * gt @ r.T + t - centre) @ axes.T
+            for j, ax in enumerate(panels):
+                ax.plot(q[:, 0], q[:, j + 1], "k--", lw=0.8, label="truth (aligned)")
+    for j, ax in enumerate(panels):
+        ax.set_ylabel(("across", "up")[j])
+    panels[-1].set_xlabel("along the path (the joined trajectory's units)")
+    panels[0].legend(fontsize=7)
     out = _png(fig)
     plt.close(fig)
     return out
