@@ -13,7 +13,6 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
-import cv2
 import numpy as np
 from pydantic import BaseModel, Field
 from rich.console import Console
@@ -22,7 +21,10 @@ from rich.table import Table
 
 from endopipe.commands.batch.driver import run_cases
 from endopipe.commands.batch.rows import CaseRow, CaseTask
+from endopipe.commands.recording.frames import pose_every_frame
+from endopipe.commands.recording.fuse import one_mesh
 from endopipe.commands.recording.join import Joined, join_windows
+from endopipe.commands.recording.summary import RecordingSummary, summarise
 from endopipe.commands.recording.windows import WindowPlan, plan_windows
 from endopipe.pipeline.errors import EndopipeError, InputError
 from endopipe.pipeline.executors import ClusterConfig, load_cluster_config
@@ -42,40 +44,6 @@ class RecordingOptions(BaseModel):
     jobs: int | None = Field(None, ge=1, description="Windows at once.")
     cluster_config: str | None = None
     ray_address: str | None = None
-
-
-class WindowRow(BaseModel):
-    """One window's outcome in the recording's summary."""
-
-    name: str
-    frames: int
-    status: str
-    reason: str = ""
-    pose_verdict: str = ""
-    registered: int | None = None
-    depth_abs_rel: float | None = None  # median-scaled, against the ground truth
-    wall_s: float = 0.0
-
-
-class RecordingSummary(BaseModel):
-    """recording/summary.json: the windows, the junctions, the joined trajectory's scores."""
-
-    keyframes: int
-    windows: list[WindowRow]
-    segments: int
-    posed_keyframes: int
-    verdict: str  # ok | doubtful
-    reasons: list[str] = []
-    ate_percent_of_path: float | None = None  # joined trajectory against the truth (segment 0)
-    ate_frames: int | None = None
-    frames: int | None = None  # frames from segment 0's first keyframe to its last
-    frames_posed: int | None = None  # of them, posed (keyframes, and frames registered)
-    depth_abs_rel_all_frames: float | None = None  # median-scaled, every posed frame with truth
-    depth_abs_rel_keyframes: float | None = None  # the same over the keyframes alone
-    depth_frames_scored: int | None = None
-    mesh_frames: int | None = None  # keyframes fused into recording/mesh.ply (segment 0)
-    chamfer_pct_radius: float | None = None  # the fused mesh against the ground-truth mesh
-    off_seen_pct: float | None = None  # share of the mesh far from any surface a camera saw
 
 
 def is_recording(pipe: Pipeline, case_dir: Path, options: RecordingOptions) -> bool:
@@ -168,7 +136,7 @@ def run_recording(
     staging.mkdir()
     frames = None
     if until is None or pipe.index(until) >= pipe.index("depth"):
-        frames = all_frames(
+        frames = pose_every_frame(
             pipe, info, windows_dir, joined, configs, ingest, staging, summary, console
         )
     mesh = None
@@ -210,176 +178,6 @@ def _truth_poses(ingest) -> list[np.ndarray] | None:
     if gt is None or not gt.has_poses():
         return None
     return [np.asarray(p, np.float64) for p in gt.poses()]
-
-
-def summarise(
-    plan: WindowPlan, rows: list[CaseRow], joined: Joined, truth: list[np.ndarray] | None
-) -> RecordingSummary:
-    """The recording's verdict: doubtful when a window failed or is doubtful, or the chain
-    broke; the ATE of the first segment against the truth, when there is one."""
-    from endopipe.stages.metrics.depth import pose_metrics
-
-    windows = [
-        WindowRow(
-            name=row.case,
-            frames=len(frames),
-            status=row.status,
-            reason=row.reason,
-            pose_verdict=row.pose_verdict,
-            registered=_int(row.metrics.get("poses.registered")),
-            depth_abs_rel=row.metrics.get("depth.median_scaled.abs_rel"),
-            wall_s=row.wall_s,
-        )
-        for row, frames in zip(rows, plan.windows, strict=True)
-    ]
-    reasons = [f"{w.name} failed: {w.reason}" for w in windows if w.status != "ok"]
-    reasons += [f"{w.name}: poses doubtful" for w in windows if w.pose_verdict == "doubtful"]
-    reasons += [f"{j.a}-{j.b} not joined: {j.reason}" for j in joined.junctions if not j.joined]
-    ate = frames = None
-    if truth is not None:
-        est = {f.source_index: np.array(f.c2w) for f in joined.frames if f.segment == 0}
-        gt = {i: truth[i] for i in est if i < len(truth)}
-        if len(gt) >= 3:
-            m = pose_metrics(est, gt)
-            ate, frames = m["ate_percent_of_path"], int(m["frames"])
-    return RecordingSummary(
-        keyframes=len({i for w in plan.windows for i in w}),
-        windows=windows,
-        segments=joined.segments,
-        posed_keyframes=len(joined.frames),
-        verdict="doubtful" if reasons else "ok",
-        reasons=reasons,
-        ate_percent_of_path=ate,
-        ate_frames=frames,
-    )
-
-
-def _int(value: float | None) -> int | None:
-    return None if value is None else int(value)
-
-
-def all_frames(
-    pipe: Pipeline,
-    info: CaseInfo,
-    windows_dir: Path,
-    joined: Joined,
-    configs: dict[str, StageConfig],
-    ingest,
-    staging: Path,
-    summary: RecordingSummary,
-    console: Console,
-) -> list[dict]:
-    """Every frame between the keyframes posed and given a depth map (recording/depth/, in
-    segment 0's units), frames.json written, and the depth scored on all of them."""
-    from rich.progress import Progress
-
-    from endopipe.commands.recording.frames import every_frame
-    from endopipe.stages.ingest.selection import resize
-    from endopipe.stages.io.sources import open_input
-    from endopipe.stages.metrics.depth import depth_frame_metrics
-
-    intrinsics = Path(info.intrinsics_file) if info.intrinsics_file else None
-    source = open_input(Path(info.input), intrinsics, format=info.kind)
-    size = (ingest.width, ingest.height)
-    (staging / "depth").mkdir()
-    gt = None
-    try:
-        gt = ingest.ground_truth()
-    except InputError:
-        pass
-    scores: dict[int, float] = {}
-    fov = ingest.fov()
-
-    def write_depth(i: int, depth: np.ndarray) -> None:
-        np.save(staging / "depth" / f"{i:06d}.npy", depth)
-        truth = gt.depth(i) if gt is not None else None
-        if truth is None:
-            return
-        if truth.shape != depth.shape:
-            truth = cv2.resize(truth, size, interpolation=cv2.INTER_NEAREST)
-        m = depth_frame_metrics(depth, truth.astype(np.float32), fov)
-        if np.isfinite(m["abs_rel"]):
-            scores[i] = m["abs_rel"]
-
-    frames_in = ((f.source_index, resize(f.rgb, size)) for f in source.frames())
-    seg = [f.source_index for f in joined.frames if f.segment == 0]
-    total = (max(seg) - min(seg) + 1) if seg else 0
-    with Progress(console=console, transient=True) as bar:
-        task = bar.add_task("every frame", total=total)
-        poses = every_frame(
-            pipe,
-            frames_in,
-            windows_dir,
-            joined,
-            configs["depth"],
-            write_depth,
-            lambda: bar.advance(task),
-        )
-    rows = [p.model_dump(mode="json") for p in poses]
-    write_json(staging / "frames.json", {"frames": rows})
-    summary.frames = len(poses)
-    summary.frames_posed = sum(p.c2w is not None for p in poses)
-    if scores:
-        keys = {p.source_index for p in poses if p.kind == "keyframe"}
-        summary.depth_abs_rel_all_frames = float(np.mean(list(scores.values())))
-        on_keys = [v for i, v in scores.items() if i in keys]
-        summary.depth_abs_rel_keyframes = float(np.mean(on_keys)) if on_keys else None
-        summary.depth_frames_scored = len(scores)
-    return rows
-
-
-def one_mesh(
-    pipe: Pipeline,
-    windows_dir: Path,
-    joined: Joined,
-    configs: dict[str, StageConfig],
-    ingest,
-    truth: list[np.ndarray] | None,
-    summary: RecordingSummary,
-):
-    """The windows' depth fused into one cleaned mesh; its scores into `summary`."""
-    from endopipe.commands.recording.fuse import fuse_recording
-    from endopipe.stages.mesh.evaluation import (
-        case_ground_truth,
-        evaluate_against_gt,
-        ground_truth_mesh,
-    )
-    from endopipe.stages.surface.clean import clean_mesh
-
-    cfg = configs["mesh"]
-    fused = fuse_recording(pipe, windows_dir, joined, cfg)
-    if fused is None:
-        return None
-    raw, info, cams = fused
-    if raw.empty:
-        return None
-    mesh, _ = clean_mesh(
-        raw,
-        min_component_fraction=cfg.min_component_fraction,
-        min_component_diameter=cfg.min_component_diameter * info["radius"],
-        smooth_iterations=cfg.smooth_iterations,
-        taubin_lambda=cfg.taubin_lambda,
-        taubin_mu=cfg.taubin_mu,
-    )
-    summary.mesh_frames = int(info["frames_used"])
-    gt = case_ground_truth(ingest.gt_dir) if ingest.gt_dir else None
-    gt_mesh = ground_truth_mesh(gt) if gt is not None else None
-    if gt_mesh is not None and truth is not None:
-        centre = gt.centerline() if hasattr(gt, "centerline") else None
-        metrics = evaluate_against_gt(
-            mesh,
-            cams,  # type: ignore[arg-type]  (a case's cameras, by source_index)
-            gt_mesh,
-            {i: truth[i] for i in cams.c2w if i < len(truth)},
-            info["depth_trunc"],
-            cfg,
-            gt_radius=float(np.mean(centre[1])) if centre is not None else None,
-            est_radius=info["radius"],
-        )
-        if metrics.get("evaluated"):
-            summary.chamfer_pct_radius = metrics.get("chamfer_pct_radius")
-            summary.off_seen_pct = metrics.get("off_seen_pct")
-    return mesh
 
 
 def _publish(

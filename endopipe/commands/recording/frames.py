@@ -20,9 +20,13 @@ from typing import Any
 import cv2
 import numpy as np
 from pydantic import BaseModel
+from rich.console import Console
 
 from endopipe.commands.recording.join import Joined
+from endopipe.commands.recording.summary import RecordingSummary
+from endopipe.pipeline.errors import InputError
 from endopipe.pipeline.runner import Pipeline
+from endopipe.pipeline.stage import CaseInfo, StageConfig, write_json
 from endopipe.stages.camera import Camera, pixel_directions
 from endopipe.stages.ingest.keyframes import track_corners
 
@@ -176,3 +180,72 @@ def every_frame(
             )
         )
     return out
+
+
+def pose_every_frame(
+    pipe: Pipeline,
+    info: CaseInfo,
+    windows_dir: Path,
+    joined: Joined,
+    configs: dict[str, StageConfig],
+    ingest,
+    staging: Path,
+    summary: RecordingSummary,
+    console: Console,
+) -> list[dict]:
+    """Every frame between the keyframes posed and given a depth map (recording/depth/, in
+    segment 0's units), frames.json written, and the depth scored on all of them."""
+    from rich.progress import Progress
+
+    from endopipe.stages.ingest.selection import resize
+    from endopipe.stages.io.sources import open_input
+    from endopipe.stages.metrics.depth import depth_frame_metrics
+
+    intrinsics = Path(info.intrinsics_file) if info.intrinsics_file else None
+    source = open_input(Path(info.input), intrinsics, format=info.kind)
+    size = (ingest.width, ingest.height)
+    (staging / "depth").mkdir()
+    gt = None
+    try:
+        gt = ingest.ground_truth()
+    except InputError:
+        pass
+    scores: dict[int, float] = {}
+    fov = ingest.fov()
+
+    def write_depth(i: int, depth: np.ndarray) -> None:
+        np.save(staging / "depth" / f"{i:06d}.npy", depth)
+        truth = gt.depth(i) if gt is not None else None
+        if truth is None:
+            return
+        if truth.shape != depth.shape:
+            truth = cv2.resize(truth, size, interpolation=cv2.INTER_NEAREST)
+        m = depth_frame_metrics(depth, truth.astype(np.float32), fov)
+        if np.isfinite(m["abs_rel"]):
+            scores[i] = m["abs_rel"]
+
+    frames_in = ((f.source_index, resize(f.rgb, size)) for f in source.frames())
+    seg = [f.source_index for f in joined.frames if f.segment == 0]
+    total = (max(seg) - min(seg) + 1) if seg else 0
+    with Progress(console=console, transient=True) as bar:
+        task = bar.add_task("every frame", total=total)
+        poses = every_frame(
+            pipe,
+            frames_in,
+            windows_dir,
+            joined,
+            configs["depth"],
+            write_depth,
+            lambda: bar.advance(task),
+        )
+    rows = [p.model_dump(mode="json") for p in poses]
+    write_json(staging / "frames.json", {"frames": rows})
+    summary.frames = len(poses)
+    summary.frames_posed = sum(p.c2w is not None for p in poses)
+    if scores:
+        keys = {p.source_index for p in poses if p.kind == "keyframe"}
+        summary.depth_abs_rel_all_frames = float(np.mean(list(scores.values())))
+        on_keys = [v for i, v in scores.items() if i in keys]
+        summary.depth_abs_rel_keyframes = float(np.mean(on_keys)) if on_keys else None
+        summary.depth_frames_scored = len(scores)
+    return rows

@@ -16,7 +16,9 @@ from typing import Any
 import numpy as np
 
 from endopipe.commands.recording.join import Joined
+from endopipe.commands.recording.summary import RecordingSummary
 from endopipe.pipeline.runner import Pipeline
+from endopipe.pipeline.stage import StageConfig
 from endopipe.stages.camera import Camera
 from endopipe.stages.mesh.config import MeshConfig
 from endopipe.stages.mesh.inputs import auto_depth_trunc, valid_depth
@@ -105,3 +107,56 @@ def fuse_recording(
     cams = JoinedCameras({f.source_index: pose(f) for f in frames}, first)
     info = {"voxel_size": voxel, "depth_trunc": trunc, "frames_used": used, "radius": radius}
     return mesh, info, cams
+
+
+def one_mesh(
+    pipe: Pipeline,
+    windows_dir: Path,
+    joined: Joined,
+    configs: dict[str, StageConfig],
+    ingest,
+    truth: list[np.ndarray] | None,
+    summary: RecordingSummary,
+):
+    """The windows' depth fused into one cleaned mesh; its scores into `summary`."""
+    from endopipe.stages.mesh.evaluation import (
+        case_ground_truth,
+        evaluate_against_gt,
+        ground_truth_mesh,
+    )
+    from endopipe.stages.surface.clean import clean_mesh
+
+    cfg = configs["mesh"]
+    fused = fuse_recording(pipe, windows_dir, joined, cfg)
+    if fused is None:
+        return None
+    raw, info, cams = fused
+    if raw.empty:
+        return None
+    mesh, _ = clean_mesh(
+        raw,
+        min_component_fraction=cfg.min_component_fraction,
+        min_component_diameter=cfg.min_component_diameter * info["radius"],
+        smooth_iterations=cfg.smooth_iterations,
+        taubin_lambda=cfg.taubin_lambda,
+        taubin_mu=cfg.taubin_mu,
+    )
+    summary.mesh_frames = int(info["frames_used"])
+    gt = case_ground_truth(ingest.gt_dir) if ingest.gt_dir else None
+    gt_mesh = ground_truth_mesh(gt) if gt is not None else None
+    if gt_mesh is not None and truth is not None:
+        centre = gt.centerline() if hasattr(gt, "centerline") else None
+        metrics = evaluate_against_gt(
+            mesh,
+            cams,  # type: ignore[arg-type]  (a case's cameras, by source_index)
+            gt_mesh,
+            {i: truth[i] for i in cams.c2w if i < len(truth)},
+            info["depth_trunc"],
+            cfg,
+            gt_radius=float(np.mean(centre[1])) if centre is not None else None,
+            est_radius=info["radius"],
+        )
+        if metrics.get("evaluated"):
+            summary.chamfer_pct_radius = metrics.get("chamfer_pct_radius")
+            summary.off_seen_pct = metrics.get("off_seen_pct")
+    return mesh

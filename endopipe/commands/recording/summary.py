@@ -1,0 +1,90 @@
+"""recording/summary.json: each window's outcome, the verdict and the recording's scores."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import BaseModel
+
+from endopipe.commands.batch.rows import CaseRow
+from endopipe.commands.recording.join import Joined
+from endopipe.commands.recording.windows import WindowPlan
+
+
+class WindowRow(BaseModel):
+    """One window's outcome in the recording's summary."""
+
+    name: str
+    frames: int
+    status: str
+    reason: str = ""
+    pose_verdict: str = ""
+    registered: int | None = None
+    depth_abs_rel: float | None = None  # median-scaled, against the ground truth
+    wall_s: float = 0.0
+
+
+class RecordingSummary(BaseModel):
+    """recording/summary.json: the windows, the junctions, the joined trajectory's scores."""
+
+    keyframes: int
+    windows: list[WindowRow]
+    segments: int
+    posed_keyframes: int
+    verdict: str  # ok | doubtful
+    reasons: list[str] = []
+    ate_percent_of_path: float | None = None  # joined trajectory against the truth (segment 0)
+    ate_frames: int | None = None
+    frames: int | None = None  # frames from segment 0's first keyframe to its last
+    frames_posed: int | None = None  # of them, posed (keyframes, and frames registered)
+    depth_abs_rel_all_frames: float | None = None  # median-scaled, every posed frame with truth
+    depth_abs_rel_keyframes: float | None = None  # the same over the keyframes alone
+    depth_frames_scored: int | None = None
+    mesh_frames: int | None = None  # keyframes fused into recording/mesh.ply (segment 0)
+    chamfer_pct_radius: float | None = None  # the fused mesh against the ground-truth mesh
+    off_seen_pct: float | None = None  # share of the mesh far from any surface a camera saw
+
+
+def summarise(
+    plan: WindowPlan, rows: list[CaseRow], joined: Joined, truth: list[np.ndarray] | None
+) -> RecordingSummary:
+    """The recording's verdict: doubtful when a window failed or is doubtful, or the chain
+    broke; the ATE of the first segment against the truth, when there is one."""
+    from endopipe.stages.metrics.depth import pose_metrics
+
+    windows = [
+        WindowRow(
+            name=row.case,
+            frames=len(frames),
+            status=row.status,
+            reason=row.reason,
+            pose_verdict=row.pose_verdict,
+            registered=_int(row.metrics.get("poses.registered")),
+            depth_abs_rel=row.metrics.get("depth.median_scaled.abs_rel"),
+            wall_s=row.wall_s,
+        )
+        for row, frames in zip(rows, plan.windows, strict=True)
+    ]
+    reasons = [f"{w.name} failed: {w.reason}" for w in windows if w.status != "ok"]
+    reasons += [f"{w.name}: poses doubtful" for w in windows if w.pose_verdict == "doubtful"]
+    reasons += [f"{j.a}-{j.b} not joined: {j.reason}" for j in joined.junctions if not j.joined]
+    ate = frames = None
+    if truth is not None:
+        est = {f.source_index: np.array(f.c2w) for f in joined.frames if f.segment == 0}
+        gt = {i: truth[i] for i in est if i < len(truth)}
+        if len(gt) >= 3:
+            m = pose_metrics(est, gt)
+            ate, frames = m["ate_percent_of_path"], int(m["frames"])
+    return RecordingSummary(
+        keyframes=len({i for w in plan.windows for i in w}),
+        windows=windows,
+        segments=joined.segments,
+        posed_keyframes=len(joined.frames),
+        verdict="doubtful" if reasons else "ok",
+        reasons=reasons,
+        ate_percent_of_path=ate,
+        ate_frames=frames,
+    )
+
+
+def _int(value: float | None) -> int | None:
+    return None if value is None else int(value)
