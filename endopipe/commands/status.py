@@ -3,6 +3,7 @@ the folders alone (no stage is imported, so it answers in a fraction of a second
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rich.markup import escape
@@ -12,8 +13,6 @@ from endopipe.commands.cases import resolve_case
 from endopipe.commands.terminal import out
 
 if TYPE_CHECKING:
-    from pathlib import Path
-
     from endopipe.pipeline.runner import Pipeline
 
 COLOURS = {"fresh": "green", "stale": "yellow", "missing": "red", "running": "cyan"}
@@ -50,3 +49,23 @@ def show_status(
             "running; stages after it are judged by what is on disk now",
             highlight=False,
         )
+    show_windows(case_dir)
+
+
+def show_windows(case_dir: Path) -> None:
+    """A recording's windows, each a case of its own: where they are and how the last join
+    went (the stages above are the whole recording's; only its ingest runs there)."""
+    import json
+
+    windows = sorted(p for p in (case_dir / "windows").glob("w[0-9][0-9][0-9]") if p.is_dir())
+    if not windows:
+        return
+    line = f"a recording in {len(windows)} windows, each a case: endopipe status {windows[0]}"
+    summary = case_dir / "recording" / "summary.json"
+    if summary.is_file():
+        s = json.loads(summary.read_text())
+        ok = sum(w["status"] == "ok" for w in s["windows"])
+        line += f"; last join: {ok} of {len(s['windows'])} windows ok, verdict {s['verdict']}"
+    else:
+        line += "; not joined yet"
+    out.print(escape(line), highlight=False, soft_wrap=True)
