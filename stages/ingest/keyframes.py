@@ -12,62 +12,15 @@ of the recent frames (the sequence's median is not known while it streams).
 from __future__ import annotations
 
 from collections import deque
-from typing import Literal
 
 import cv2
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
+from endopipe.stages.ingest.config import KeyframeConfig
 from endopipe.stages.ingest.frame_quality import sharpness
 
 #: Why a frame of a recording is not a keyframe (ingest's summary counts each).
 KEYFRAME_REASONS = ("washed_out", "blurred", "still", "little_motion")
-
-
-class KeyframeConfig(BaseModel):
-    """When and how ingest keeps frames by content instead of keeping every usable one."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    mode: Literal["auto", "content", "all"] = Field(
-        "auto",
-        description="content: keep a frame when the view has moved enough since the last kept "
-        "one; all: every usable frame; auto: content for inputs of more than auto_above frames "
-        "(a short clip keeps all its frames).",
-    )
-    auto_above: int = Field(300, ge=1, description="auto: inputs longer than this are recordings.")
-    min_flow: float = Field(
-        0.01,
-        gt=0,
-        description="Keep a frame once the tracked corners have moved this far (median, a "
-        "fraction of the image diagonal) since the last keyframe (a synthetic colon "
-        "withdrawal: a keyframe every 0.9 mm, the spacing of the bench's frames).",
-    )
-    still_flow: float = Field(
-        0.001,
-        ge=0,
-        description="A frame whose corners moved less than this (fraction of the diagonal) "
-        "since the frame before shows a camera standing still.",
-    )
-    washed_out: float = Field(
-        0.35,
-        gt=0,
-        le=1,
-        description="A frame with more than this fraction of its pixels saturated (grey >= "
-        "250) is washed out by the light.",
-    )
-    blur_window: int = Field(
-        31, ge=3, description="Frames in the running median that blur is judged against."
-    )
-    track_size: int = Field(160, ge=32, description="Long side of the grey copies tracked, px.")
-    corners: int = Field(200, ge=10, description="Corners tracked from each keyframe.")
-    min_tracked: float = Field(
-        0.3,
-        gt=0,
-        le=1,
-        description="When fewer than this fraction of a keyframe's corners are still tracked, "
-        "the view has changed: the frame is kept.",
-    )
 
 
 class KeyframeSelector:
