@@ -147,11 +147,12 @@ class KeyframeConfig(BaseModel):
         "since the frame before shows a camera standing still.",
     )
     washed_out: float = Field(
-        0.35,
+        0.2,
         gt=0,
         le=1,
         description="A frame with more than this fraction of its pixels saturated (grey >= "
-        "250) is washed out by the light.",
+        "250) is washed out by the light (usable frames of the synthetic colon: 0-1.3%; "
+        "washed-out ones 32-57%).",
     )
     blur_window: int = Field(
         31, ge=3, description="Frames in the running median that blur is judged against."
