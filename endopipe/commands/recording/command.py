@@ -234,7 +234,8 @@ def _print_summary(
         ate += (
             f"; {summary.frames_posed} of {summary.frames} frames posed, depth AbsRel "
             f"{summary.depth_abs_rel_all_frames:.4f} over {summary.depth_frames_scored} frames "
-            f"(keyframes alone {summary.depth_abs_rel_keyframes:.4f})"
+            f"(keyframes alone {summary.depth_abs_rel_keyframes:.4f}; a guess from shading "
+            f"alone {summary.brightness_guess_abs_rel:.3f})"
         )
     if summary.chamfer_pct_radius is not None:
         ate += (

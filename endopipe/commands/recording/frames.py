@@ -132,12 +132,12 @@ def every_frame(
     windows_dir: Path,
     joined: Joined,
     depth_cfg: Any,
-    write_depth: Callable[[int, np.ndarray], None],
+    write_depth: Callable[[int, np.ndarray, np.ndarray], None],
     progress: Callable[[], None] = lambda: None,
 ) -> list[FramePose]:
-    """Pose (and, through `write_depth`, the depth map in segment 0's units) of every frame
-    from `frames_in` ((source_index, RGB at the working size)) between segment 0's first and
-    last keyframes."""
+    """Pose (and, through `write_depth(source_index, depth, rgb)`, the depth map in segment 0's
+    units) of every frame from `frames_in` ((source_index, RGB at the working size)) between
+    segment 0's first and last keyframes."""
     keys = {f.source_index: f for f in joined.frames if f.segment == 0}
     order = sorted(keys)
     if not order:
@@ -169,7 +169,7 @@ def every_frame(
             )
             continue
         depth = sight.render(sight.camera, c2w, None, colour=False)["depth"]
-        write_depth(source_index, (depth * np.float32(sim.s)).astype(np.float32))
+        write_depth(source_index, (depth * np.float32(sim.s)).astype(np.float32), rgb)
         out.append(
             FramePose(
                 source_index=source_index,
@@ -199,6 +199,7 @@ def pose_every_frame(
 
     from endopipe.stages.ingest.selection import resize
     from endopipe.stages.io.sources import open_input
+    from endopipe.stages.metrics.baselines import brightness_guess
     from endopipe.stages.metrics.depth import depth_frame_metrics
 
     intrinsics = Path(info.intrinsics_file) if info.intrinsics_file else None
@@ -211,18 +212,22 @@ def pose_every_frame(
     except InputError:
         pass
     scores: dict[int, float] = {}
+    guesses: dict[int, float] = {}  # the brightness guess, on exactly our pixels
     fov = ingest.fov()
 
-    def write_depth(i: int, depth: np.ndarray) -> None:
+    def write_depth(i: int, depth: np.ndarray, rgb: np.ndarray) -> None:
         np.save(staging / "depth" / f"{i:06d}.npy", depth)
         truth = gt.depth(i) if gt is not None else None
         if truth is None:
             return
         if truth.shape != depth.shape:
             truth = cv2.resize(truth, size, interpolation=cv2.INTER_NEAREST)
-        m = depth_frame_metrics(depth, truth.astype(np.float32), fov)
+        truth = truth.astype(np.float32)
+        m = depth_frame_metrics(depth, truth, fov)
         if np.isfinite(m["abs_rel"]):
             scores[i] = m["abs_rel"]
+            ours = (depth > 0) if fov is None else (depth > 0) & (fov > 0)
+            guesses[i] = depth_frame_metrics(brightness_guess(rgb), truth, ours)["abs_rel"]
 
     frames_in = ((f.source_index, resize(f.rgb, size)) for f in source.frames())
     seg = [f.source_index for f in joined.frames if f.segment == 0]
@@ -248,4 +253,5 @@ def pose_every_frame(
         on_keys = [v for i, v in scores.items() if i in keys]
         summary.depth_abs_rel_keyframes = float(np.mean(on_keys)) if on_keys else None
         summary.depth_frames_scored = len(scores)
+        summary.brightness_guess_abs_rel = float(np.nanmean(list(guesses.values())))
     return rows

@@ -141,6 +141,7 @@ def write_report(
         ("frames posed", f"{summary.frames_posed} of {summary.frames}" if summary.frames else "—"),
         ("depth AbsRel, every posed frame", fmt(summary.depth_abs_rel_all_frames)),
         ("depth AbsRel, keyframes", fmt(summary.depth_abs_rel_keyframes)),
+        ("the brightness guess's AbsRel, same pixels", fmt(summary.brightness_guess_abs_rel)),
         ("one mesh: Chamfer (% of radius)", fmt(summary.chamfer_pct_radius)),
         ("one mesh: off the seen surface (%)", fmt(summary.off_seen_pct)),
     ]
@@ -148,8 +149,9 @@ def write_report(
     head = (
         f'<p class="verdict {"ok" if verdict == "ok" else ""}"><b>{verdict}</b></p>'
         f"<ul>{reasons}</ul><table class='kv'>{table}</table>"
-        "<p class='muted'>Depth AbsRel is median-scaled per frame against the truth; each "
-        "window's report shows it beside the guesses that look at no geometry.</p>"
+        "<p class='muted'>Depth AbsRel is median-scaled per frame against the truth; the "
+        "brightness guess (depth from shading alone, no geometry) is scored on the same "
+        "pixels.</p>"
     )
     junction = {j.b: j for j in joined.junctions}
     rows = []

@@ -39,6 +39,7 @@ class RecordingSummary(BaseModel):
     depth_abs_rel_all_frames: float | None = None  # median-scaled, every posed frame with truth
     depth_abs_rel_keyframes: float | None = None  # the same over the keyframes alone
     depth_frames_scored: int | None = None
+    brightness_guess_abs_rel: float | None = None  # a guess from shading alone, same pixels
     mesh_frames: int | None = None  # keyframes fused into recording/mesh.ply (segment 0)
     chamfer_pct_radius: float | None = None  # the fused mesh against the ground-truth mesh
     off_seen_pct: float | None = None  # share of the mesh far from any surface a camera saw
