@@ -6,7 +6,6 @@ joined trajectory against the truth, and the scores."""
 from __future__ import annotations
 
 import datetime as dt
-import io
 from pathlib import Path
 
 import numpy as np
@@ -26,13 +25,12 @@ REASON_COLOURS = {
 }
 
 
-def _png(fig) -> Markup:
-    import base64
+def _img(fig) -> Markup:
+    """A figure as an inline image (the report stage's encoding)."""
+    from endopipe.stages.report.figures import figure_uri
 
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    uri = "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
-    return Markup(f'<img src="{uri}" style="max-width:100%">')
+    fig.tight_layout()
+    return Markup(f'<img src="{figure_uri(fig)}" style="max-width:100%">')
 
 
 def timeline(
@@ -43,12 +41,10 @@ def timeline(
     frames: list[dict] | None,
 ) -> Markup:
     """Frames along x: what ingest did with each, the windows, and which frames got a pose."""
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(11, 2.6))
+    fig = Figure(figsize=(11, 2.6), dpi=110)
+    ax = fig.subplots()
     rows = {"kept": kept, **dropped}
     for reason, idx in rows.items():
         if idx:
@@ -73,18 +69,13 @@ def timeline(
     ax.set_xlabel("frame of the input")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.35), ncol=8, fontsize=7, frameon=False)
     ax.set_ylim(0, 3.8)
-    out = _png(fig)
-    plt.close(fig)
-    return out
+    return _img(fig)
 
 
 def trajectory_figure(joined: Joined, truth: list[np.ndarray] | None) -> Markup:
     """The joined camera centres, each coordinate against the path's main axis, with the
     truth aligned onto them (a similarity) where there is one."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     from endopipe.stages.camera.transforms import umeyama
 
@@ -95,7 +86,8 @@ def trajectory_figure(joined: Joined, truth: list[np.ndarray] | None) -> Markup:
     everything = np.concatenate(segs)
     centre = everything.mean(0)
     _, _, axes = np.linalg.svd(everything - centre)  # along the path first
-    fig, panels = plt.subplots(2, 1, figsize=(10, 4), sharex=True)
+    fig = Figure(figsize=(10, 4), dpi=110)
+    panels = fig.subplots(2, 1, sharex=True)
     for k, c in enumerate(segs):
         q = (c - centre) @ axes.T
         for j, ax in enumerate(panels):
@@ -113,9 +105,7 @@ def trajectory_figure(joined: Joined, truth: list[np.ndarray] | None) -> Markup:
         ax.set_ylabel(("across", "up")[j])
     panels[-1].set_xlabel("along the path (the joined trajectory's units)")
     panels[0].legend(fontsize=7)
-    out = _png(fig)
-    plt.close(fig)
-    return out
+    return _img(fig)
 
 
 def write_report(
