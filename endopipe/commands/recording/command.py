@@ -11,6 +11,7 @@ from __future__ import annotations
 import copy
 import shutil
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -171,13 +172,26 @@ def _window_poses(pipe: Pipeline, window_dir: Path) -> dict[int, np.ndarray] | N
 
 
 def _truth_poses(ingest) -> list[np.ndarray] | None:
+    """The true c2w of every input frame, by source_index, through the frame -> truth mapping
+    (None: no truth, or unreadable: the recording is then not scored)."""
+    from endopipe.stages.io.ground_truth import poses_by_frame
+
     try:
         gt = ingest.ground_truth()
+        count = len(gt.poses()) if gt is not None and gt.has_poses() else 0
+        every = [_Frame(i, i) for i in range(count)]
+        truth = poses_by_frame(gt, every) if count else None
     except InputError:
         return None
-    if gt is None or not gt.has_poses():
-        return None
-    return [np.asarray(p, np.float64) for p in gt.poses()]
+    return [truth[i] for i in range(count)] if truth else None
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """An input frame as the frame -> truth mapping reads it (index = source_index here)."""
+
+    index: int
+    source_index: int
 
 
 def _publish(
