@@ -53,6 +53,12 @@ ConfigOption = Annotated[
     list[str] | None, typer.Option("--config", help="Preset name or YAML file; repeatable.")
 ]
 SetOption = Annotated[list[str] | None, typer.Option("--set", help="stage.key=value; repeatable.")]
+WindowOption = Annotated[
+    int, typer.Option(min=8, help="A recording (long input): keyframes per window.")
+]
+OverlapOption = Annotated[
+    int, typer.Option(min=3, help="A recording: keyframes shared by neighbouring windows.")
+]
 
 
 #: The DAG in order: each stage's module and class.
@@ -109,12 +115,8 @@ def run(
     dry_run: Annotated[bool, typer.Option(help="Show what would run, run nothing.")] = False,
     wait: Annotated[bool, typer.Option(help="Wait for another run on the same case.")] = False,
     quiet: Annotated[bool, typer.Option(help="No progress output.")] = False,
-    window: Annotated[
-        int, typer.Option(min=8, help="A recording (long input): keyframes per window.")
-    ] = 60,
-    overlap: Annotated[
-        int, typer.Option(min=3, help="A recording: keyframes shared by neighbouring windows.")
-    ] = 12,
+    window: WindowOption = 60,
+    overlap: OverlapOption = 12,
     executor: Annotated[
         str, typer.Option(help="Where a recording's windows run: local | slurm | ray.")
     ] = "local",
@@ -398,9 +400,13 @@ def batch(
         str | None,
         typer.Option(help="Ray cluster to join (auto, ray://host:10001); default: a local one."),
     ] = None,
+    window: WindowOption = 60,
+    overlap: OverlapOption = 12,
     dry_run: Annotated[bool, typer.Option(help="List the cases and readers only.")] = False,
 ) -> None:
-    """Run every case under FOLDER through the pipeline; write batch.csv and batch.html."""
+    """Run every case under FOLDER through the pipeline; write batch.csv and batch.html. A long
+    input whose keyframes fill more than one window (a Hamlyn sequence, a whole video) runs as
+    a recording: its windows on the executor, joined into one trajectory, one row."""
     from endopipe.commands.batch.command import run_batch
 
     run_batch(
@@ -416,6 +422,8 @@ def batch(
         until=until,
         cluster_config=cluster_config,
         ray_address=ray_address,
+        window=window,
+        overlap=overlap,
         dry_run=dry_run,
         console=console,
         out=out,

@@ -221,3 +221,52 @@ def test_windows_on_ray_and_submitit_give_the_local_trajectory(
     other = ate(tmp_path / executor, *extra)
     print(f"ATE local {local:.3f}%, {executor} {other:.3f}%")
     assert abs(other - local) <= 0.1
+
+
+def _as_hamlyn_edm(case: Path, seq: Path) -> Path:
+    """The synthetic withdrawal laid out as the Hamlyn release of Endo-Depth-and-Motion:
+    color/*.jpg, depth/*.png (uint16 mm), intrinsics.txt."""
+    import cv2
+
+    (seq / "color").mkdir(parents=True)
+    (seq / "depth").mkdir()
+    for png in sorted((case / "frames").glob("*.png")):
+        bgr = cv2.imread(str(png))
+        cv2.imwrite(str(seq / "color" / f"{png.stem}.jpg"), bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])
+        depth = np.load(case / "gt" / "depth" / f"{png.stem}.npy")
+        cv2.imwrite(str(seq / "depth" / f"{png.stem}.png"), np.round(depth).astype(np.uint16))
+    k = json.loads((case / "intrinsics.json").read_text())
+    (seq / "intrinsics.txt").write_text(
+        f"{k['fx']} 0 {k['cx']}\n0 {k['fy']} {k['cy']}\n0 0 1\n"
+    )
+    return seq
+
+
+def test_batch_takes_a_long_hamlyn_sequence_through_windows(
+    withdrawal: Path, tmp_path: Path
+) -> None:
+    """`endopipe batch` of a folder holding a Hamlyn sequence long enough for several windows
+    (the withdrawal in the Endo-Depth-and-Motion layout) and a short clip: the sequence runs
+    as a recording (windows, one trajectory, one row in batch.csv), the clip as a case."""
+    import csv
+
+    from endopipe.commands.synth import SynthConfig, generate_case
+
+    folder = tmp_path / "hamlyn"
+    seq = _as_hamlyn_edm(withdrawal, folder / "rectified01")
+    generate_case(folder / "short", SynthConfig(seed=1, frames=12, width=160, height=128))
+    wd = tmp_path / "wd"
+    args = ["batch", str(folder), "--workdir", str(wd), "--until", "poses"]
+    args += ["--set", "ingest.keyframes.auto_above=100", "--window", "14", "--overlap", "5"]
+    assert main(args) == 0
+    rows = {r["case"]: r for r in csv.DictReader((wd / "batch.csv").open())}
+    assert set(rows) == {"rectified01", "short"} and all(r["status"] == "ok" for r in rows.values())
+    case = wd / "rectified01"
+    summary = json.loads((case / "recording" / "summary.json").read_text())
+    assert len(summary["windows"]) >= 2 and summary["segments"] == 1, summary["reasons"]
+    assert not (wd / "short" / "windows").exists()
+    truth = json.loads((withdrawal / "gt" / "poses.json").read_text())["poses"]
+    ate = pose_metrics(_trajectory(case), {i: np.array(p) for i, p in enumerate(truth)})
+    print(f"{len(summary['windows'])} windows, ATE {ate['ate_percent_of_path']:.2f}% of the path")
+    assert ate["ate_percent_of_path"] < 2.0
+    assert seq.name in rows["rectified01"]["input"]

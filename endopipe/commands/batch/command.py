@@ -12,8 +12,10 @@ from rich.table import Table
 
 from endopipe.commands.batch.driver import run_cases
 from endopipe.commands.batch.page import write_html
+from endopipe.commands.batch.recordings import may_be_long, run_long_case
 from endopipe.commands.batch.rows import CaseRow, CaseTask
 from endopipe.commands.batch.table import write_csv
+from endopipe.commands.recording.command import RecordingOptions
 from endopipe.pipeline.config import load_config
 from endopipe.pipeline.errors import EndopipeError
 from endopipe.pipeline.executors import EXECUTORS, ClusterConfig, load_cluster_config
@@ -34,12 +36,19 @@ def run_batch(
     until: str | None = None,
     cluster_config: Path | None = None,
     ray_address: str | None = None,
+    window: int = 60,
+    overlap: int = 12,
     dry_run: bool = False,
     console: Console,
     out: Console,
 ) -> list[CaseRow]:
     """Every case under `folder` through `pipe` with `case_fn` (top-level, picklable: it runs
-    in worker processes or cluster jobs). Raises when a case failed, after writing the table."""
+    in worker processes or cluster jobs). Raises when a case failed, after writing the table.
+
+    A long input whose keyframes fill more than one window (a Hamlyn sequence, a whole video)
+    runs as `endopipe run` runs it: windows of `window` keyframes (`overlap` shared) sent to
+    the executor, joined into one trajectory; one row for the recording. Recordings go one
+    after another, each using the executor for its windows; the short cases go together."""
     from endopipe.stages.io.cases import find_cases
 
     if until is not None:
@@ -77,10 +86,26 @@ def run_batch(
         for c in cases
     ]
     t0 = time.perf_counter()
-    rows = run_cases(
+    recorded: dict[str, CaseRow] = {}
+    long = [t for t in tasks if may_be_long(t, configs)]
+    if long:
+        options = RecordingOptions(
+            window=window,
+            overlap=overlap,
+            executor=executor,
+            jobs=jobs,
+            cluster_config=str(cluster_config) if cluster_config else None,
+            ray_address=ray_address,
+        )
+        for task in long:
+            row = run_long_case(pipe, case_fn, task, configs, options, console)
+            if row is not None:
+                recorded[task.name] = row
+                print_case_row(console, row)
+    short = run_cases(
         executor,
         case_fn,
-        tasks,
+        [t for t in tasks if t.name not in recorded],
         jobs=jobs,
         workdir=wd,
         cluster=cluster,
@@ -88,6 +113,8 @@ def run_batch(
         on_row=lambda row: print_case_row(console, row),
         note=lambda m: console.print(f"[dim]{escape(m)}[/dim]"),
     )
+    by_name = recorded | {r.case: r for r in short}
+    rows = [by_name[t.name] for t in tasks]
     elapsed = time.perf_counter() - t0
     csv_path = write_csv(rows, wd / "batch.csv")
     html_path = write_html(rows, wd / "batch.html", title=f"endopipe batch: {folder}")

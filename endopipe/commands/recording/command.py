@@ -245,11 +245,15 @@ def _print_summary(
         else ""
     )
     if summary.depth_abs_rel_all_frames is not None:
+        relative = summary.depth_gt_kind == "relative"
+        spearman = f"Spearman {summary.depth_spearman_all_frames:.3f}, " if relative else ""
         ate += (
-            f"; {summary.frames_posed} of {summary.frames} frames posed, depth AbsRel "
-            f"{summary.depth_abs_rel_all_frames:.4f} over {summary.depth_frames_scored} frames "
-            f"(keyframes alone {summary.depth_abs_rel_keyframes:.4f}; a guess from shading "
-            f"alone {summary.brightness_guess_abs_rel:.3f})"
+            f"; {summary.frames_posed} of {summary.frames} frames posed, depth {spearman}"
+            f"{'SSI-' if relative else ''}AbsRel {summary.depth_abs_rel_all_frames:.4f}, "
+            f"coverage {summary.depth_coverage_all_frames:.3f} over "
+            f"{summary.depth_frames_scored} frames (keyframes alone "
+            f"{summary.depth_abs_rel_keyframes:.4f}; a guess from shading alone "
+            f"{summary.brightness_guess_abs_rel:.3f})"
         )
     if summary.chamfer_pct_radius is not None:
         ate += (

@@ -200,7 +200,7 @@ def pose_every_frame(
     from endopipe.stages.ingest.selection import resize
     from endopipe.stages.io.sources import open_input
     from endopipe.stages.metrics.baselines import brightness_guess
-    from endopipe.stages.metrics.depth import depth_frame_metrics
+    from endopipe.stages.metrics.depth import affine_invariant_metrics, depth_frame_metrics
 
     intrinsics = Path(info.intrinsics_file) if info.intrinsics_file else None
     source = open_input(Path(info.input), intrinsics, format=info.kind)
@@ -211,9 +211,13 @@ def pose_every_frame(
         gt = ingest.ground_truth()
     except InputError:
         pass
-    scores: dict[int, float] = {}
+    scores: dict[int, dict[str, float]] = {}
     guesses: dict[int, float] = {}  # the brightness guess, on exactly our pixels
     fov = ingest.fov()
+    # A relative ground truth (C3VD's panel, an affine proxy of depth) is scored as the depth
+    # stage scores it: AbsRel after a least-squares scale and shift, Spearman, coverage.
+    relative = gt is not None and getattr(gt, "kind", "exact") == "relative"
+    frame_metrics = affine_invariant_metrics if relative else depth_frame_metrics
 
     def write_depth(i: int, depth: np.ndarray, rgb: np.ndarray) -> None:
         np.save(staging / "depth" / f"{i:06d}.npy", depth)
@@ -223,11 +227,11 @@ def pose_every_frame(
         if truth.shape != depth.shape:
             truth = cv2.resize(truth, size, interpolation=cv2.INTER_NEAREST)
         truth = truth.astype(np.float32)
-        m = depth_frame_metrics(depth, truth, fov)
+        m = frame_metrics(depth, truth, fov)
         if np.isfinite(m["abs_rel"]):
-            scores[i] = m["abs_rel"]
+            scores[i] = m
             ours = (depth > 0) if fov is None else (depth > 0) & (fov > 0)
-            guesses[i] = depth_frame_metrics(brightness_guess(rgb), truth, ours)["abs_rel"]
+            guesses[i] = frame_metrics(brightness_guess(rgb), truth, ours)["abs_rel"]
 
     frames_in = ((f.source_index, resize(f.rgb, size)) for f in source.frames())
     seg = [f.source_index for f in joined.frames if f.segment == 0]
@@ -249,9 +253,15 @@ def pose_every_frame(
     summary.frames_posed = sum(p.c2w is not None for p in poses)
     if scores:
         keys = {p.source_index for p in poses if p.kind == "keyframe"}
-        summary.depth_abs_rel_all_frames = float(np.mean(list(scores.values())))
-        on_keys = [v for i, v in scores.items() if i in keys]
+        summary.depth_gt_kind = "relative" if relative else "exact"
+        summary.depth_abs_rel_all_frames = float(np.mean([m["abs_rel"] for m in scores.values()]))
+        on_keys = [m["abs_rel"] for i, m in scores.items() if i in keys]
         summary.depth_abs_rel_keyframes = float(np.mean(on_keys)) if on_keys else None
+        summary.depth_coverage_all_frames = float(np.mean([m["coverage"] for m in scores.values()]))
+        if relative:
+            summary.depth_spearman_all_frames = float(
+                np.mean([m["spearman"] for m in scores.values()])
+            )
         summary.depth_frames_scored = len(scores)
         summary.brightness_guess_abs_rel = float(np.nanmean(list(guesses.values())))
     return rows

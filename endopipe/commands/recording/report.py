@@ -124,13 +124,17 @@ def write_report(
 
     verdict = "ok" if summary.verdict == "ok" else "doubtful"
     reasons = "".join(f"<li>{escape(r)}</li>" for r in summary.reasons)
+    relative = summary.depth_gt_kind == "relative"
+    absrel = "SSI-AbsRel" if relative else "AbsRel"
     scores = [
         ("keyframes / windows", f"{summary.keyframes} / {len(plan.windows)}"),
         ("segments", str(summary.segments)),
         ("ATE, joined trajectory (% of path)", fmt(summary.ate_percent_of_path)),
         ("frames posed", f"{summary.frames_posed} of {summary.frames}" if summary.frames else "—"),
-        ("depth AbsRel, every posed frame", fmt(summary.depth_abs_rel_all_frames)),
-        ("depth AbsRel, keyframes", fmt(summary.depth_abs_rel_keyframes)),
+        (f"depth {absrel}, every posed frame", fmt(summary.depth_abs_rel_all_frames)),
+        (f"depth {absrel}, keyframes", fmt(summary.depth_abs_rel_keyframes)),
+        ("depth Spearman, every posed frame", fmt(summary.depth_spearman_all_frames)),
+        ("depth coverage, every posed frame", fmt(summary.depth_coverage_all_frames)),
         ("the brightness guess's AbsRel, same pixels", fmt(summary.brightness_guess_abs_rel)),
         ("one mesh: Chamfer (% of radius)", fmt(summary.chamfer_pct_radius)),
         ("one mesh: off the seen surface (%)", fmt(summary.off_seen_pct)),
@@ -139,9 +143,15 @@ def write_report(
     head = (
         f'<p class="verdict {"ok" if verdict == "ok" else ""}"><b>{verdict}</b></p>'
         f"<ul>{reasons}</ul><table class='kv'>{table}</table>"
-        "<p class='muted'>Depth AbsRel is median-scaled per frame against the truth; the "
-        "brightness guess (depth from shading alone, no geometry) is scored on the same "
-        "pixels.</p>"
+        "<p class='muted'>Depth AbsRel is "
+        + (
+            "taken after a least-squares scale and shift per frame (the truth is an affine "
+            "proxy of depth)"
+            if relative
+            else "median-scaled per frame against the truth"
+        )
+        + "; the brightness guess (depth from shading alone, no geometry) is scored on the "
+        "same pixels.</p>"
     )
     junction = {j.b: j for j in joined.junctions}
     rows = []

@@ -36,8 +36,13 @@ class RecordingSummary(BaseModel):
     ate_frames: int | None = None
     frames: int | None = None  # frames from segment 0's first keyframe to its last
     frames_posed: int | None = None  # of them, posed (keyframes, and frames registered)
-    depth_abs_rel_all_frames: float | None = None  # median-scaled, every posed frame with truth
+    # Depth of every posed frame with truth: "exact" truth is scored median-scaled, a "relative"
+    # one (an affine proxy of depth, as C3VD's) after a least-squares scale and shift.
+    depth_gt_kind: str | None = None
+    depth_abs_rel_all_frames: float | None = None
     depth_abs_rel_keyframes: float | None = None  # the same over the keyframes alone
+    depth_spearman_all_frames: float | None = None  # relative truth: rank correlation
+    depth_coverage_all_frames: float | None = None  # share of the truth's pixels given a depth
     depth_frames_scored: int | None = None
     brightness_guess_abs_rel: float | None = None  # a guess from shading alone, same pixels
     mesh_frames: int | None = None  # keyframes fused into recording/mesh.ply (segment 0)
