@@ -236,9 +236,7 @@ def _as_hamlyn_edm(case: Path, seq: Path) -> Path:
         depth = np.load(case / "gt" / "depth" / f"{png.stem}.npy")
         cv2.imwrite(str(seq / "depth" / f"{png.stem}.png"), np.round(depth).astype(np.uint16))
     k = json.loads((case / "intrinsics.json").read_text())
-    (seq / "intrinsics.txt").write_text(
-        f"{k['fx']} 0 {k['cx']}\n0 {k['fy']} {k['cy']}\n0 0 1\n"
-    )
+    (seq / "intrinsics.txt").write_text(f"{k['fx']} 0 {k['cx']}\n0 {k['fy']} {k['cy']}\n0 0 1\n")
     return seq
 
 
@@ -270,3 +268,22 @@ def test_batch_takes_a_long_hamlyn_sequence_through_windows(
     print(f"{len(summary['windows'])} windows, ATE {ate['ate_percent_of_path']:.2f}% of the path")
     assert ate["ate_percent_of_path"] < 2.0
     assert seq.name in rows["rectified01"]["input"]
+
+
+def test_a_short_clip_keeps_todays_path(withdrawal: Path, tmp_path: Path) -> None:
+    """Under `ingest.keyframes.auto_above` frames (300) a clip keeps every usable frame and
+    runs as one case; above it, the same clip is keyframed by content (its pause dropped)."""
+    from endopipe.stages.ingest.view import IngestView
+
+    kept = {}
+    for label, extra in (("short", []), ("long", ["--set", "ingest.keyframes.auto_above=100"])):
+        wd = tmp_path / label
+        args = ["run", str(withdrawal), "--workdir", str(wd), "--until", "ingest", "--quiet"]
+        assert main([*args, *extra]) == 0
+        ingest = IngestView(wd / "withdrawal" / "01_ingest")
+        kept[label] = (len(ingest.frames), bool(ingest.summary.keyframes))
+        assert not (wd / "withdrawal" / "windows").exists()
+    print(kept)
+    assert kept["short"][1] is False and kept["long"][1] is True
+    assert kept["short"][0] >= 120 - 12  # at most its 6 blurred and 6 washed-out frames dropped
+    assert kept["long"][0] < kept["short"][0] / 2

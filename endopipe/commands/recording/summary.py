@@ -19,7 +19,7 @@ class WindowRow(BaseModel):
     reason: str = ""
     pose_verdict: str = ""
     registered: int | None = None
-    depth_abs_rel: float | None = None  # median-scaled, against the ground truth
+    depth_abs_rel: float | None = None  # median-scaled (a relative truth: affine-fitted)
     wall_s: float = 0.0
 
 
@@ -65,7 +65,9 @@ def summarise(
             reason=row.reason,
             pose_verdict=row.pose_verdict,
             registered=_int(row.metrics.get("poses.registered")),
-            depth_abs_rel=row.metrics.get("depth.median_scaled.abs_rel"),
+            depth_abs_rel=row.metrics.get(
+                "depth.median_scaled.abs_rel", row.metrics.get("depth.affine_invariant.abs_rel")
+            ),
             wall_s=row.wall_s,
         )
         for row, frames in zip(rows, plan.windows, strict=True)
