@@ -117,11 +117,13 @@ def test_a_withdrawal_through_windows_matches_the_truth_and_one_window(
     single = PosesView(one / "withdrawal" / "02_poses").c2w
     single = {ingest.frame(i).source_index: c2w for i, c2w in single.items()}
     assert pose_metrics(joined, single)["ate_percent_of_path"] < 2.0
-    # a re-run finds every window done and only joins again
+    # a re-run finds every window done and the recording joined from them: nothing runs
     windows = sorted((case / "windows").iterdir())
     before = [len(list((w / "runs").glob("*.json"))) for w in windows]
+    written = (case / "recording" / "key.json").stat().st_mtime_ns
     assert main([*args, "--window", "14", "--overlap", "5"]) == 0
     assert [len(list((w / "runs").glob("*.json"))) for w in windows] == before
+    assert (case / "recording" / "key.json").stat().st_mtime_ns == written
 
 
 def test_a_frame_between_keyframes_registers_on_their_depth(withdrawal: Path) -> None:

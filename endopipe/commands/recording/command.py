@@ -9,6 +9,8 @@ windows with work left (each window is a cached case).
 from __future__ import annotations
 
 import copy
+import hashlib
+import json
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -34,6 +36,9 @@ from endopipe.pipeline.stage import CaseInfo, StageConfig, write_json
 
 RECORDING_DIR = "recording"
 WINDOWS_DIR = "windows"
+KEY_FILE = "key.json"
+#: Bumped when what the recording writes from the same windows changes.
+RECORDING_VERSION = 2
 
 
 class RecordingOptions(BaseModel):
@@ -126,6 +131,14 @@ def run_recording(
         on_row=lambda row: _print_window(console, row),
         note=lambda m: console.print(f"[dim]{escape(m)}[/dim]"),
     )
+    key = recording_key(pipe, windows_dir, plan, configs, until, info)
+    final = case_dir / RECORDING_DIR
+    if all(r.status == "ok" and not r.stages_ran for r in rows) and _stored_key(final) == key:
+        summary = RecordingSummary.model_validate_json((final / "summary.json").read_text())
+        console.print("[dim]recording cached: every window fresh, joined before[/dim]")
+        joined = Joined.model_validate_json((final / "trajectory.json").read_text())
+        _print_summary(console, summary, joined, case_dir)
+        return summary
     poses = [
         _window_poses(pipe, windows_dir / row.case) if row.status == "ok" else None for row in rows
     ]
@@ -156,9 +169,47 @@ def run_recording(
         frames,
         truth,
     )
+    write_json(staging / KEY_FILE, {"key": key})
     _publish(case_dir, staging, plan, joined, summary, mesh)
     _print_summary(console, summary, joined, case_dir)
     return summary
+
+
+def recording_key(
+    pipe: Pipeline,
+    windows_dir: Path,
+    plan: WindowPlan,
+    configs: dict[str, StageConfig],
+    until: str | None,
+    info: CaseInfo,
+) -> str:
+    """What recording/ is made from: the input, the windows' keyframes, every window stage's
+    own cache key, the settings the join reads (depth, mesh) and how far the run goes."""
+    stages = {
+        plan.name(k): {
+            s.name: (m.key if (m := pipe.manifest(windows_dir / plan.name(k), s.name)) else None)
+            for s in pipe.selection(until)
+        }
+        for k in range(len(plan.windows))
+    }
+    parts = {
+        "version": RECORDING_VERSION,
+        "input": info.input_digest,
+        "windows": plan.windows,
+        "stages": stages,
+        "until": until,
+        "depth": configs["depth"].model_dump(mode="json"),
+        "mesh": configs["mesh"].model_dump(mode="json"),
+    }
+    return hashlib.sha256(json.dumps(parts, sort_keys=True).encode()).hexdigest()
+
+
+def _stored_key(folder: Path) -> str | None:
+    """The key recording/ was written with (None: none, or unreadable: it is made again)."""
+    try:
+        return json.loads((folder / KEY_FILE).read_text())["key"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 def _window_poses(pipe: Pipeline, window_dir: Path) -> dict[int, np.ndarray] | None:
