@@ -18,8 +18,9 @@ import numpy as np
 from endopipe.cli import build_pipeline
 from endopipe.pipeline.config import load_config
 from endopipe.stages.centerline.view import CenterlineView
-from endopipe.stages.depth.stage import make_renderer, torch_threads
-from endopipe.stages.nerf.render import pick_device
+from endopipe.stages.depth.renderer import FieldSight
+from endopipe.stages.depth.stage import torch_threads
+from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
 
@@ -32,16 +33,15 @@ def main() -> None:
     cfg = load_config(build_pipeline().stages, [], args.sets)["depth"].model_copy(
         update={"colour": False}
     )
-    nerf = NerfView(args.case / "04_nerf")
-    model = nerf.model(pick_device(cfg.device))
-    prior = CenterlineView(args.case / "03_centerline").prior()
     poses = PosesView(args.case / "02_poses")
-    camera = poses.intrinsics
-    c2w = nerf.c2w(poses)
-    c2ws = [c2w[i] for i in poses.registered]
-    t0 = time.perf_counter()
-    render = make_renderer(cfg, model, prior, c2ws, camera, nerf)
-    bake_s = time.perf_counter() - t0
+    sight = FieldSight.open(
+        cfg,
+        IngestView(args.case / "01_ingest"),
+        poses,
+        CenterlineView(args.case / "03_centerline"),
+        NerfView(args.case / "04_nerf"),
+    )
+    render, camera, c2w, bake_s = sight.render, sight.camera, sight.c2w, sight.bake_s
     times = []
     with torch_threads(1 if cfg.renderer == "baked" else None):
         for i in poses.registered:

@@ -20,6 +20,7 @@ from endopipe.stages.centerline.view import CenterlineView
 from endopipe.stages.depth.config import DepthConfig
 from endopipe.stages.depth.evaluate import evaluate, ground_truth_depths, headline_coverage
 from endopipe.stages.depth.preview import write_preview
+from endopipe.stages.depth.renderer import FieldSight
 from endopipe.stages.depth.summary import DepthSummary
 from endopipe.stages.depth.view import (
     DEPTH_DIR,
@@ -56,18 +57,9 @@ class Depth(Stage):
         poses: PosesView = ctx.input("poses")
         centerline: CenterlineView = ctx.input("centerline")
         nerf: NerfView = ctx.input("nerf")
-        from endopipe.stages.nerf.render import pick_device
-
-        model = nerf.model(pick_device(cfg.device))
-        prior = centerline.prior()
-        k = poses.intrinsics
-        if (k.width, k.height) != (ingest.width, ingest.height):
-            k = k.scaled(ingest.width, ingest.height)
-        c2w = nerf.c2w(poses)  # the poses the field was fitted to (refined, when it refined)
-        t_bake = time.perf_counter()
-        renderer = make_renderer(cfg, model, prior, [c2w[i] for i in poses.registered], k, nerf)
-        bake_s = time.perf_counter() - t_bake
-        heldout = set(getattr(model, "meta", {}).get("heldout", []))
+        sight = FieldSight.open(cfg, ingest, poses, centerline, nerf)
+        renderer, k, c2w, bake_s = sight.render, sight.camera, sight.c2w, sight.bake_s
+        heldout = set(getattr(sight.model, "meta", {}).get("heldout", []))
         beyond_lens = ~lens_valid_mask(k)  # no ray there: no depth (poses logs how much)
         for sub in (DEPTH_DIR, OPACITY_DIR):
             (ctx.out / sub).mkdir()
@@ -133,58 +125,6 @@ class Depth(Stage):
             heldout_psnr=metrics.get("heldout_psnr"),
             heldout_ssim=metrics.get("heldout_ssim"),
         )
-
-
-def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, nerf: NerfView):
-    """A function (intrinsics, c2w, frame, colour) -> {depth, opacity[, rgb]}; depth is 0
-    where the ray found no surface (unless `fill`). Colour is the nerf stage's own rendering
-    of the held-out frame when it kept one (the field is the same: no second render)."""
-    from endopipe.stages.nerf.render import render_image, surface_found
-
-    def colour_of(k, c2w, i) -> np.ndarray:
-        kept = nerf.heldout_rgb(i)
-        if kept is not None and kept.shape[:2] == (k.height, k.width):
-            return kept
-        return render_image(model, prior, k, c2w, colour=True)["rgb"]
-
-    if cfg.renderer == "field":
-
-        def render_field(k, c2w, i, colour):
-            out = render_image(model, prior, k, c2w, colour=colour)
-            found, out["hazy"] = surface_found(
-                out["opacity"], out["spread"], cfg.min_opacity, cfg.max_spread
-            )
-            out["depth"] = np.where(found, out["depth"], 0.0)
-            return out
-
-        return render_field
-    from endopipe.stages.nerf.baked import BakedSurface, FarSettings
-
-    far = None
-    if cfg.far == "baked":
-        far = FarSettings(
-            max_nodes=cfg.far_max_nodes,
-            levels=tuple(cfg.far_levels),
-            faint=cfg.far_faint,
-        )
-    baked = BakedSurface.bake(
-        model,
-        prior,
-        c2ws,
-        k,
-        cfg.bake_voxels_per_radius,
-        cfg.bake_density_level,
-        min_component_radii=cfg.bake_min_component,
-        far=far,
-    )
-
-    def render(k, c2w, i, colour):
-        out = baked.render_depth(k, c2w, cfg.min_opacity, cfg.fill, cfg.max_spread)
-        if colour:  # colour needs the albedo field: only for held-out frames
-            out["rgb"] = colour_of(k, c2w, i)
-        return out
-
-    return render
 
 
 def write_depth_pngs(folder: Path, depths: dict[int, np.ndarray]) -> float:

@@ -56,24 +56,18 @@ class WindowSight:
     """One window's keyframes, camera and field, loaded when a frame first needs them."""
 
     def __init__(self, pipe: Pipeline, folder: Path, depth_cfg: Any, scale: float) -> None:
-        from endopipe.stages.depth.stage import make_renderer
+        from endopipe.stages.depth.renderer import FieldSight
         from endopipe.stages.mesh.inputs import valid_depth
-        from endopipe.stages.nerf.render import pick_device
 
         self.ingest = pipe.view(folder, "ingest")
-        poses = pipe.view(folder, "poses")
-        nerf = pipe.view(folder, "nerf")
         self.depth_view = pipe.view(folder, "depth")
-        self.camera: Camera = poses.intrinsics
-        if (self.camera.width, self.camera.height) != (self.ingest.width, self.ingest.height):
-            self.camera = self.camera.scaled(self.ingest.width, self.ingest.height)
-        self.c2w = nerf.c2w(poses)
+        views = [pipe.view(folder, s) for s in ("poses", "centerline", "nerf")]
+        sight = FieldSight.open(depth_cfg, self.ingest, *views)
+        self.camera: Camera = sight.camera
+        self.c2w = sight.c2w
+        self.render = sight.render
         self.index = {f.source_index: f.index for f in self.ingest.frames}
         self.scale = scale
-        model = nerf.model(pick_device(depth_cfg.device))
-        prior = pipe.view(folder, "centerline").prior()
-        c2ws = [self.c2w[i] for i in poses.registered]
-        self.render = make_renderer(depth_cfg, model, prior, c2ws, self.camera, nerf)
         self._valid_depth = valid_depth
 
     def reference(self, source_index: int) -> Reference | None:

@@ -1,0 +1,107 @@
+"""How a depth map is rendered from a case's trained field: the baked surface (the default) or
+the field itself, at the poses the field was fitted to. The depth stage renders the keyframes
+with it; a recording renders the frames between them with the same, one window at a time."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from endopipe.stages.camera import Camera
+from endopipe.stages.centerline.view import CenterlineView
+from endopipe.stages.depth.config import DepthConfig
+from endopipe.stages.ingest.view import IngestView
+from endopipe.stages.nerf.view import NerfView
+from endopipe.stages.poses.view import PosesView
+
+#: (intrinsics, c2w, frame index, colour) -> {depth, opacity, hazy[, rgb]}
+Render = Callable[[Camera, np.ndarray, int, bool], dict[str, Any]]
+
+
+@dataclass
+class FieldSight:
+    """A case's field made ready to render depth: the renderer, the working camera, the poses
+    the field was fitted to (refined, when it refined) and the bake's time."""
+
+    render: Render
+    camera: Camera
+    c2w: dict[int, np.ndarray]
+    model: Any
+    bake_s: float
+
+    @classmethod
+    def open(
+        cls,
+        cfg: DepthConfig,
+        ingest: IngestView,
+        poses: PosesView,
+        centerline: CenterlineView,
+        nerf: NerfView,
+    ) -> FieldSight:
+        from endopipe.stages.nerf.render import pick_device
+
+        model = nerf.model(pick_device(cfg.device))
+        k = poses.intrinsics
+        if (k.width, k.height) != (ingest.width, ingest.height):
+            k = k.scaled(ingest.width, ingest.height)
+        c2w = nerf.c2w(poses)
+        prior = centerline.prior()
+        t0 = time.perf_counter()
+        render = make_renderer(cfg, model, prior, [c2w[i] for i in poses.registered], k, nerf)
+        return cls(render, k, c2w, model, time.perf_counter() - t0)
+
+
+def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, nerf: NerfView):
+    """A function (intrinsics, c2w, frame, colour) -> {depth, opacity[, rgb]}; depth is 0
+    where the ray found no surface (unless `fill`). Colour is the nerf stage's own rendering
+    of the held-out frame when it kept one (the field is the same: no second render)."""
+    from endopipe.stages.nerf.render import render_image, surface_found
+
+    def colour_of(k, c2w, i) -> np.ndarray:
+        kept = nerf.heldout_rgb(i)
+        if kept is not None and kept.shape[:2] == (k.height, k.width):
+            return kept
+        return render_image(model, prior, k, c2w, colour=True)["rgb"]
+
+    if cfg.renderer == "field":
+
+        def render_field(k, c2w, i, colour):
+            out = render_image(model, prior, k, c2w, colour=colour)
+            found, out["hazy"] = surface_found(
+                out["opacity"], out["spread"], cfg.min_opacity, cfg.max_spread
+            )
+            out["depth"] = np.where(found, out["depth"], 0.0)
+            return out
+
+        return render_field
+    from endopipe.stages.nerf.baked import BakedSurface, FarSettings
+
+    far = None
+    if cfg.far == "baked":
+        far = FarSettings(
+            max_nodes=cfg.far_max_nodes,
+            levels=tuple(cfg.far_levels),
+            faint=cfg.far_faint,
+        )
+    baked = BakedSurface.bake(
+        model,
+        prior,
+        c2ws,
+        k,
+        cfg.bake_voxels_per_radius,
+        cfg.bake_density_level,
+        min_component_radii=cfg.bake_min_component,
+        far=far,
+    )
+
+    def render(k, c2w, i, colour):
+        out = baked.render_depth(k, c2w, cfg.min_opacity, cfg.fill, cfg.max_spread)
+        if colour:  # colour needs the albedo field: only for held-out frames
+            out["rgb"] = colour_of(k, c2w, i)
+        return out
+
+    return render
