@@ -214,7 +214,10 @@ def pose_every_frame(
     frame_metrics = affine_invariant_metrics if relative else depth_frame_metrics
 
     def write_depth(i: int, depth: np.ndarray, rgb: np.ndarray) -> None:
-        np.save(staging / "depth" / f"{i:06d}.npy", depth)
+        # float16: 0.05% of the depth, half the disk of float32; scored as stored
+        stored = depth.astype(np.float16)
+        np.save(staging / "depth" / f"{i:06d}.npy", stored)
+        depth = stored.astype(np.float32)
         truth = gt.depth(i) if gt is not None else None
         if truth is None:
             return
