@@ -25,6 +25,7 @@ from endopipe.pipeline.errors import EndopipeError
 # the commands that use them: `endopipe --help` and `status` start in a fraction of a second.
 if TYPE_CHECKING:
     from endopipe.commands.batch.rows import CaseRow, CaseTask
+    from endopipe.commands.recording.command import RecordingOptions
     from endopipe.pipeline.runner import Pipeline
     from endopipe.pipeline.stage import Stage
 
@@ -131,7 +132,6 @@ def run(
     """Run the pipeline on INPUT: what is stale runs, what is fresh is reused. A long input
     (ingest.keyframes) whose keyframes fill more than one window runs as a recording: windows
     through the executor, joined into one trajectory."""
-    from endopipe.commands.recording.command import RecordingOptions
     from endopipe.commands.run import run_case
 
     run_case(
@@ -149,15 +149,29 @@ def run(
         dry_run=dry_run,
         wait=wait,
         quiet=quiet,
-        recording=RecordingOptions(
-            window=window,
-            overlap=overlap,
-            executor=executor,
-            jobs=jobs,
-            cluster_config=str(cluster_config) if cluster_config else None,
-            ray_address=ray_address,
-        ),
+        recording=recording_options(window, overlap, executor, jobs, cluster_config, ray_address),
         case_fn=batch_case,
+    )
+
+
+def recording_options(
+    window: int,
+    overlap: int,
+    executor: str,
+    jobs: int | None,
+    cluster_config: Path | None,
+    ray_address: str | None,
+) -> RecordingOptions:
+    """How `run` and `batch` cut a long input into windows and where the windows run."""
+    from endopipe.commands.recording.command import RecordingOptions
+
+    return RecordingOptions(
+        window=window,
+        overlap=overlap,
+        executor=executor,
+        jobs=jobs,
+        cluster_config=str(cluster_config) if cluster_config else None,
+        ray_address=ray_address,
     )
 
 
@@ -422,8 +436,7 @@ def batch(
         until=until,
         cluster_config=cluster_config,
         ray_address=ray_address,
-        window=window,
-        overlap=overlap,
+        recording=recording_options(window, overlap, executor, jobs, cluster_config, ray_address),
         dry_run=dry_run,
         console=console,
         out=out,

@@ -36,8 +36,7 @@ def run_batch(
     until: str | None = None,
     cluster_config: Path | None = None,
     ray_address: str | None = None,
-    window: int = 60,
-    overlap: int = 12,
+    recording: RecordingOptions | None = None,
     dry_run: bool = False,
     console: Console,
     out: Console,
@@ -46,9 +45,10 @@ def run_batch(
     in worker processes or cluster jobs). Raises when a case failed, after writing the table.
 
     A long input whose keyframes fill more than one window (a Hamlyn sequence, a whole video)
-    runs as `endopipe run` runs it: windows of `window` keyframes (`overlap` shared) sent to
-    the executor, joined into one trajectory; one row for the recording. Recordings go one
-    after another, each using the executor for its windows; the short cases go together."""
+    runs as `endopipe run` runs it: windows cut and sent as `recording` says (its defaults on
+    this batch's executor when None), joined into one trajectory; one row for the recording.
+    Recordings go one after another, each using the executor for its windows; the short
+    cases go together."""
     from endopipe.stages.io.cases import find_cases
 
     if until is not None:
@@ -89,14 +89,7 @@ def run_batch(
     recorded: dict[str, CaseRow] = {}
     long = [t for t in tasks if may_be_long(t, configs)]
     if long:
-        options = RecordingOptions(
-            window=window,
-            overlap=overlap,
-            executor=executor,
-            jobs=jobs,
-            cluster_config=str(cluster_config) if cluster_config else None,
-            ray_address=ray_address,
-        )
+        options = recording or RecordingOptions(executor=executor, jobs=jobs)
         for task in long:
             row = run_long_case(pipe, case_fn, task, configs, options, console)
             if row is not None:
