@@ -116,7 +116,7 @@ def run(
     dry_run: Annotated[bool, typer.Option(help="Show what would run, run nothing.")] = False,
     wait: Annotated[bool, typer.Option(help="Wait for another run on the same case.")] = False,
     quiet: Annotated[bool, typer.Option(help="No progress output.")] = False,
-    window: WindowOption = 60,
+    window: WindowOption = 100,
     overlap: OverlapOption = 12,
     executor: Annotated[
         str, typer.Option(help="Where a recording's windows run: local | slurm | ray.")
@@ -414,7 +414,7 @@ def batch(
         str | None,
         typer.Option(help="Ray cluster to join (auto, ray://host:10001); default: a local one."),
     ] = None,
-    window: WindowOption = 60,
+    window: WindowOption = 100,
     overlap: OverlapOption = 12,
     dry_run: Annotated[bool, typer.Option(help="List the cases and readers only.")] = False,
 ) -> None:

@@ -44,7 +44,7 @@ RECORDING_VERSION = 2
 class RecordingOptions(BaseModel):
     """How a long recording is cut and where its windows run."""
 
-    window: int = Field(60, ge=8, description="Keyframes per window.")
+    window: int = Field(100, ge=8, description="Keyframes per window.")
     overlap: int = Field(12, ge=3, description="Keyframes shared by neighbouring windows.")
     executor: str = Field("local", description="local | slurm | ray.")
     jobs: int | None = Field(None, ge=1, description="Windows at once.")
