@@ -38,7 +38,7 @@ RECORDING_DIR = "recording"
 WINDOWS_DIR = "windows"
 KEY_FILE = "key.json"
 #: Bumped when what the recording writes from the same windows changes.
-RECORDING_VERSION = 2
+RECORDING_VERSION = 1
 
 
 class RecordingOptions(BaseModel):
@@ -131,7 +131,7 @@ def run_recording(
         on_row=lambda row: _print_window(console, row),
         note=lambda m: console.print(f"[dim]{escape(m)}[/dim]"),
     )
-    key = recording_key(pipe, windows_dir, plan, configs, until, info)
+    key = recording_key(pipe, case_dir, plan, configs, until, info)
     final = case_dir / RECORDING_DIR
     if all(r.status == "ok" and not r.stages_ran for r in rows) and _stored_key(final) == key:
         summary = RecordingSummary.model_validate_json((final / "summary.json").read_text())
@@ -177,14 +177,17 @@ def run_recording(
 
 def recording_key(
     pipe: Pipeline,
-    windows_dir: Path,
+    case_dir: Path,
     plan: WindowPlan,
     configs: dict[str, StageConfig],
     until: str | None,
     info: CaseInfo,
 ) -> str:
-    """What recording/ is made from: the input, the windows' keyframes, every window stage's
-    own cache key, the settings the join reads (depth, mesh) and how far the run goes."""
+    """What recording/ is made from: the input and its ingest (the timeline), the windows'
+    keyframes, every window stage's own cache key, the settings the join reads (depth, mesh)
+    and how far the run goes."""
+    windows_dir = case_dir / WINDOWS_DIR
+    ingest = pipe.manifest(case_dir, "ingest")
     stages = {
         plan.name(k): {
             s.name: (m.key if (m := pipe.manifest(windows_dir / plan.name(k), s.name)) else None)
@@ -195,6 +198,7 @@ def recording_key(
     parts = {
         "version": RECORDING_VERSION,
         "input": info.input_digest,
+        "ingest": ingest.key if ingest else None,
         "windows": plan.windows,
         "stages": stages,
         "until": until,
