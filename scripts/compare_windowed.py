@@ -1,5 +1,6 @@
-"""A recording forced through small windows against the same input in one window (today's
-path): how far the joined trajectory is from the single-window one, and both depth scores.
+"""A recording forced through small windows against the same input in one window (a short
+clip's path): how far the joined trajectory is from the single-window one, and both depth
+scores.
 
 Run, on cases that `endopipe run` made of the same input:
 `.venv/bin/python scripts/compare_windowed.py WORKDIR/windowed WORKDIR/single`, e.g. after

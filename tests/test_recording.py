@@ -107,7 +107,7 @@ def test_a_withdrawal_through_windows_matches_the_truth_and_one_window(
     ate = pose_metrics(joined, truth)["ate_percent_of_path"]
     print(f"{len(summary['windows'])} windows, ATE {ate:.2f}% of the path")
     assert ate < 2.0
-    # the same keyframes in one window (today's path): the joined trajectory agrees
+    # the same keyframes in one window (the path of a short clip): the joined trajectory agrees
     one = tmp_path / "one"
     assert main(["run", str(withdrawal), "--workdir", str(one), *args[4:], "--window", "60"]) == 0
     from endopipe.stages.ingest.view import IngestView
@@ -272,7 +272,7 @@ def test_batch_takes_a_long_hamlyn_sequence_through_windows(
     assert seq.name in rows["rectified01"]["input"]
 
 
-def test_a_short_clip_keeps_todays_path(withdrawal: Path, tmp_path: Path) -> None:
+def test_a_short_clip_is_one_case_with_every_usable_frame(withdrawal: Path, tmp_path: Path) -> None:
     """Under `ingest.keyframes.auto_above` frames (300) a clip keeps every usable frame and
     runs as one case; above it, the same clip is keyframed by content (its pause dropped)."""
     from endopipe.stages.ingest.view import IngestView
