@@ -132,20 +132,13 @@ def run_case(
 
 
 def may_be_recording(case_dir: Path, configs: dict) -> bool:
-    """Whether ingest will keep this case's frames by content (a long input): only then is
-    ingest run first, to see whether the keyframes fill more than one window."""
-    from endopipe.pipeline.errors import InputError
+    """Whether ingest will keep this case's frames by content (a long input)."""
+    from endopipe.commands.recording.command import is_long_input
     from endopipe.pipeline.stage import CaseInfo
-    from endopipe.stages.ingest.keyframes import keyframes_on
-    from endopipe.stages.io.sources import open_input
 
     info = CaseInfo.load(case_dir)
     intrinsics = Path(info.intrinsics_file) if info.intrinsics_file else None
-    try:
-        source = open_input(Path(info.input), intrinsics, format=info.kind)
-    except InputError:  # the input is gone: the case goes on from its cache, or says so
-        return False
-    return keyframes_on(configs["ingest"].keyframes, source.frame_count())
+    return is_long_input(Path(info.input), intrinsics, info.kind, configs)
 
 
 def print_record(record: RunRecord, case_dir: Path) -> None:

@@ -12,10 +12,10 @@ from rich.table import Table
 
 from endopipe.commands.batch.driver import run_cases
 from endopipe.commands.batch.page import write_html
-from endopipe.commands.batch.recordings import may_be_long, run_long_case
+from endopipe.commands.batch.recordings import run_long_case
 from endopipe.commands.batch.rows import CaseRow, CaseTask
 from endopipe.commands.batch.table import write_csv
-from endopipe.commands.recording.command import RecordingOptions
+from endopipe.commands.recording.command import RecordingOptions, is_long_input
 from endopipe.pipeline.config import load_config
 from endopipe.pipeline.errors import EndopipeError
 from endopipe.pipeline.executors import EXECUTORS, ClusterConfig, load_cluster_config
@@ -87,7 +87,7 @@ def run_batch(
     ]
     t0 = time.perf_counter()
     recorded: dict[str, CaseRow] = {}
-    long = [t for t in tasks if may_be_long(t, configs)]
+    long = [t for t in tasks if is_long_input(Path(t.input), None, t.reader, configs)]
     if long:
         options = recording or RecordingOptions(executor=executor, jobs=jobs)
         for task in long:

@@ -17,23 +17,9 @@ from endopipe.commands.recording.command import (
     is_recording,
     run_recording,
 )
-from endopipe.pipeline.errors import EndopipeError, InputError, one_line
+from endopipe.pipeline.errors import EndopipeError, one_line
 from endopipe.pipeline.runner import Pipeline
 from endopipe.pipeline.stage import StageConfig
-
-
-def may_be_long(task: CaseTask, configs: dict[str, StageConfig]) -> bool:
-    """Whether ingest will keep this input's frames by content (it is long): only such a case
-    runs its ingest in the driver, to see whether its keyframes fill more than one window. An
-    input that cannot be opened is left to the batch's own case, which reports it."""
-    from endopipe.stages.ingest.keyframes import keyframes_on
-    from endopipe.stages.io.sources import open_input
-
-    try:
-        source = open_input(Path(task.input), None, format=task.reader)
-    except InputError:
-        return False
-    return keyframes_on(configs["ingest"].keyframes, source.frame_count())
 
 
 def run_long_case(

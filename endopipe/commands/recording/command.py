@@ -52,6 +52,22 @@ class RecordingOptions(BaseModel):
     ray_address: str | None = None
 
 
+def is_long_input(
+    path: Path, intrinsics: Path | None, fmt: str | None, configs: dict[str, StageConfig]
+) -> bool:
+    """Whether ingest will keep this input's frames by content (a long input): only then is
+    its ingest run first, to see whether the keyframes fill more than one window. An input
+    that cannot be opened is not (its own run says what is wrong, or goes on from its cache)."""
+    from endopipe.stages.ingest.keyframes import keyframes_on
+    from endopipe.stages.io.sources import open_input
+
+    try:
+        source = open_input(path, intrinsics, format=fmt)
+    except InputError:
+        return False
+    return keyframes_on(configs["ingest"].keyframes, source.frame_count())
+
+
 def is_recording(pipe: Pipeline, case_dir: Path, options: RecordingOptions) -> bool:
     """Whether ingest kept this input's frames by content and kept more than one window."""
     ingest = pipe.view(case_dir, "ingest")
