@@ -53,6 +53,23 @@ def test_identical_meshes_score_zero():
     assert m["fscore"] == 1.0
 
 
+def test_distance_to_a_large_mesh_searches_only_where_a_nearer_face_can_be():
+    # A long tube's wall: the points sit near one end, the guess is the faces around them, and
+    # a band of the wall just outside the guess is nearer to some points than the guess is.
+    tube = trimesh.creation.cylinder(radius=5.0, height=200.0, sections=64)
+    tube = tube.subdivide().subdivide()
+    v, f = np.asarray(tube.vertices), np.asarray(tube.faces)
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-8.0, 8.0, (400, 3)) + [0.0, 0.0, 90.0]
+    centre_z = v[f].mean(1)[:, 2]
+    guess = f[centre_z > 95.0]
+    exact = mm.point_to_surface(pts, v, f)
+    bound = mm.point_to_surface(pts, v, guess)
+    assert (bound > exact + 0.5).mean() > 0.3  # the guess alone is wrong for many points
+    np.testing.assert_allclose(mm.distance_to_mesh(pts, v, f, guess), exact, atol=1e-9)
+    assert len(mm.faces_in_box(v, f, pts.min(0) - 1, pts.max(0) + 1)) < 0.3 * len(f)
+
+
 def test_metrics_by_camera_distance_locate_the_error():
     """A sphere estimated 0.3 too big on its far side only: the far band carries the error."""
     a = sphere(10.0)

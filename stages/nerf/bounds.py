@@ -79,6 +79,42 @@ class PriorBounds:
         return self.prior.in_core(self.box.scene_to_world(x), fraction)
 
 
+class PixelBounds:
+    """`PriorBounds` of every pixel of the training frames, worked out once: a training step's
+    rays go through whole pixels of cameras that do not move (no pose refinement), and the
+    prior's ray march is small-tensor work that cost 13 ms of a 110 ms step at 1,024 rays.
+    Holds near, far (sampling, with the margin) and the wall's depth with its flag."""
+
+    def __init__(self, pb: PriorBounds, frames, train: list[int]) -> None:
+        h, w, dev = frames.h, frames.w, frames.device
+        vv, uu = torch.meshgrid(
+            torch.arange(h, device=dev), torch.arange(w, device=dev), indexing="ij"
+        )
+        u, v = uu.reshape(-1).float(), vv.reshape(-1).float()
+        self.row = torch.full((frames.n,), -1, dtype=torch.long, device=dev)
+        self.row[torch.as_tensor(train, device=dev)] = torch.arange(len(train), device=dev)
+        self.w = w
+        near, far, wall, has = [], [], [], []
+        for f in train:
+            o, d = frames.rays(torch.full_like(u, f, dtype=torch.long), u, v)
+            n_, f_, _ = pb.bounds(o, d, pb.margin)
+            _, w_, h_ = pb.bounds(o, d, 0.0, wall=True)
+            near.append(n_), far.append(f_), wall.append(w_), has.append(h_)
+        self.near, self.far = torch.stack(near), torch.stack(far)
+        self.wall, self.has_wall = torch.stack(wall), torch.stack(has)
+
+    def _at(self, table: torch.Tensor, frame, u, v) -> torch.Tensor:
+        return table[self.row[frame], v.long() * self.w + u.long()]
+
+    def sampling(self, frame, u, v) -> tuple[torch.Tensor, torch.Tensor]:
+        """near, far of the pixels (frame, u, v), as `PriorBounds.bounds(o, d, margin)`."""
+        return self._at(self.near, frame, u, v), self._at(self.far, frame, u, v)
+
+    def wall_of(self, frame, u, v) -> tuple[torch.Tensor, torch.Tensor]:
+        """The wall's depth and whether there is one, as `bounds(o, d, 0, wall=True)`."""
+        return self._at(self.wall, frame, u, v), self._at(self.has_wall, frame, u, v)
+
+
 def scene_bounds(model: NerfModel, prior, o: torch.Tensor, d: torch.Tensor):
     """near / far (scene depth) of scene-frame rays: from the prior, else from the box."""
     if prior is None:

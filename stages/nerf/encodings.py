@@ -63,13 +63,6 @@ def _zeroed_buffer(table: torch.Tensor) -> torch.Tensor:
     return buf
 
 
-def _batch_split(n: int, device: torch.device) -> int:
-    """How many equal batch items n points make for grid_sample: the CPU's threads (1 on a GPU,
-    or when n does not divide)."""
-    parts = torch.get_num_threads() if device.type == "cpu" else 1
-    return parts if parts > 1 and n % parts == 0 else 1
-
-
 def gather_interp(table: torch.Tensor, idx: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     """sum_k w[n, k] * table[idx[n, k]] -> (N, C); gradients flow to `table` only."""
     return _GatherInterp.apply(table, idx, w.detach().to(table.dtype))
@@ -95,7 +88,6 @@ class VMGrid(nn.Module):
         )
         self.lines = nn.Parameter(init_std * torch.randn(self._line_rows(), channels, generator=g))
         self._consts: dict[str, tuple[torch.Tensor, ...]] = {}
-        self._channels_first: tuple[tuple, list[torch.Tensor]] | None = None
 
     def _plane_rows(self) -> int:
         return sum(self.res[a] * self.res[b] for a, b, _ in self.PAIRS)
@@ -139,58 +131,10 @@ class VMGrid(nn.Module):
     def forward(
         self, x: torch.Tensor, prep: tuple[torch.Tensor, ...] | None = None
     ) -> torch.Tensor:
-        if not torch.is_grad_enabled() and prep is None:
-            return self._forward_nograd(x)
         pidx, pw, lidx, lw = prep if prep is not None else self.prepare(x)
         plane = gather_interp(self.planes, pidx, pw)
         line = gather_interp(self.lines, lidx, lw)
         return (plane * line).view(x.shape[0], 3 * self.channels)
-
-    def _forward_nograd(self, x: torch.Tensor) -> torch.Tensor:
-        """Same values through F.grid_sample: ~3x faster when no gradient is needed (the
-        sampler's first pass, rendering), since no index set-up is kept for a backward."""
-        n, r = x.shape[0], self.channels
-        out = x.new_empty(n, 3, r)
-        kw = {"align_corners": True, "padding_mode": "border"}
-        tables = self._tables_channels_first()
-        # grid_sample runs a CPU thread per batch item: the points split into one item a thread,
-        # each reading the same table (expanded, not copied).
-        parts = _batch_split(n, x.device)
-        for m, (a, b, c) in enumerate(self.PAIRS):
-            uv = torch.stack([x[:, a], x[:, b]], -1).view(parts, n // parts, 1, 2)
-            w = torch.stack([torch.zeros_like(x[:, c]), x[:, c]], -1).view(parts, n // parts, 1, 2)
-            pv = F.grid_sample(tables[2 * m].expand(parts, -1, -1, -1), uv, **kw)
-            lv = F.grid_sample(tables[2 * m + 1].expand(parts, -1, -1, -1), w, **kw)
-            out[:, m] = (pv * lv).view(parts, r, n // parts).permute(0, 2, 1).reshape(n, r)
-        return out.view(n, 3 * r)
-
-    def parameters_changed(self) -> None:
-        """Drop the channels-first copies (an optimiser's fused step updates the parameters
-        in place without bumping their version: the trainer calls this after each step)."""
-        self._channels_first = None
-
-    def _tables_channels_first(self) -> list[torch.Tensor]:
-        """Each plane and line as grid_sample reads it (1, R, H, W), copied once per change of
-        the parameters, not once per call: a training step samples the grid without gradients
-        several times (the sampler's passes), and at 384 nodes a copy costs more than a pass."""
-        key = (
-            self.planes._version,
-            self.lines._version,
-            self.planes.data_ptr(),
-            self.lines.data_ptr(),
-        )
-        if self._channels_first is None or self._channels_first[0] != key:
-            r, tables, poff, loff = self.channels, [], 0, 0
-            for a, b, c in self.PAIRS:
-                ra, rb, rc = self.res[a], self.res[b], self.res[c]
-                plane = self.planes[poff : poff + ra * rb].view(1, rb, ra, r)
-                line = self.lines[loff : loff + rc].view(1, rc, 1, r)
-                tables.append(plane.permute(0, 3, 1, 2).detach().contiguous())
-                tables.append(line.permute(0, 3, 1, 2).detach().contiguous())
-                poff += ra * rb
-                loff += rc
-            self._channels_first = (key, tables)
-        return self._channels_first[1]
 
     @torch.no_grad()
     def upsampled(self, res: tuple[int, int, int]) -> VMGrid:

@@ -17,7 +17,7 @@ import torch
 
 from endopipe.stages.camera import project
 from endopipe.stages.nerf import losses
-from endopipe.stages.nerf.bounds import PriorBounds
+from endopipe.stages.nerf.bounds import PixelBounds, PriorBounds
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.data import FrameSet, RaySampler, neighbours
 from endopipe.stages.nerf.model import NerfModel
@@ -117,6 +117,8 @@ class Trainer:
         self.sampler = RaySampler(
             frames, train, tc.batch_rays, cfg.loss.patch_size, cfg.loss.patch_fraction, self.gen
         )
+        # Poses that stay as given: every training pixel's ray bounds once, not each step.
+        self.pixel_bounds = None if refine_poses else PixelBounds(self.pb, frames, train)
         nb = neighbours(train)
         table = torch.arange(frames.n, device=self.device)
         for k, v in nb.items():
@@ -140,14 +142,7 @@ class Trainer:
             self.opt = torch.optim.Adam(groups, betas=(0.9, 0.99), fused=True)
         except (RuntimeError, TypeError, ValueError):
             self.opt = torch.optim.Adam(groups, betas=(0.9, 0.99))
-        self.opt.register_step_post_hook(lambda *_: self._parameters_changed())
         self._set_lr()
-
-    def _parameters_changed(self) -> None:
-        """Tell the grids that cache a copy of their parameters that these moved."""
-        for module in self.model.modules():
-            if hasattr(module, "parameters_changed"):
-                module.parameters_changed()
 
     @property
     def progress(self) -> float:
@@ -223,7 +218,11 @@ class Trainer:
         self.frames.refining = self.correction is not None and (progress >= cfg.pose_refine.start)
         b = self.sampler.sample()
         o, d = self.frames.rays(b.frame, b.u, b.v)
-        near, far, _ = self.pb.bounds(o, d, self.pb.margin)
+        fixed = self.pixel_bounds if not self.frames.refining else None
+        if fixed is not None:
+            near, far = fixed.sampling(b.frame, b.u, b.v)
+        else:
+            near, far, _ = self.pb.bounds(o, d, self.pb.margin)
         warm = cfg.shading.normal_warmup
         mix = 1.0 if warm <= 0 else min(1.0, progress / warm)
         patches = b.n_patches * b.patch * b.patch
@@ -263,7 +262,10 @@ class Trainer:
                 terms["core"] = losses.core_density(out["tau"], inc)
                 prior = prior + lc.core_weight * terms["core"]
             if lc.wall_weight > 0:
-                _, wall, has_wall = self.pb.bounds(o, d, 0.0, wall=True)
+                if fixed is not None:
+                    wall, has_wall = fixed.wall_of(b.frame, b.u, b.v)
+                else:
+                    _, wall, has_wall = self.pb.bounds(o, d, 0.0, wall=True)
                 terms["wall"] = losses.wall_attraction(
                     out["depth"], out["opacity"], wall, has_wall, lc.wall_tolerance
                 )

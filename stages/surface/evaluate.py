@@ -18,7 +18,8 @@ What is compared (the crop, `evaluate_mesh`):
   Surface hidden behind folds, out of every frustum, or further than max_depth is not asked for.
 - accuracy (est -> gt) is measured for estimated points inside at least one camera's frustum up
   to max_depth (no occlusion test: a floater in front of the wall counts), against the whole GT
-  mesh; estimated surface outside every frustum cannot be judged and is left out.
+  mesh (searched only where a nearer face can be, `distance_to_mesh`); estimated surface
+  outside every frustum cannot be judged and is left out.
 """
 
 from __future__ import annotations
@@ -34,7 +35,9 @@ from endopipe.stages.surface.raycast import Raycaster, point_to_surface
 __all__ = [
     "by_camera_distance",
     "chamfer",
+    "distance_to_mesh",
     "evaluate_mesh",
+    "faces_in_box",
     "faces_near_cameras",
     "frustum_box",
     "fscore",
@@ -316,7 +319,7 @@ def evaluate_mesh(
     est_pts = sample_surface(est_vertices, est_faces, n_samples, seed)
     est_pts = est_pts[in_any_frustum(est_pts, c2ws, camera, max_depth, mask)]
 
-    d_acc = point_to_surface(est_pts, gt_v, gt_f)
+    d_acc = distance_to_mesh(est_pts, gt_v, gt_f, near)
     d_comp = point_to_surface(gt_pts, est_vertices, est_faces)
     out = surface_metrics(d_acc, d_comp, threshold)
     frac = float(keep.mean()) if len(keep) else 0.0
@@ -334,6 +337,40 @@ def evaluate_mesh(
             est_pts, d_acc, gt_pts, d_comp, centres, distance_bands
         )
     return out
+
+
+def distance_to_mesh(
+    points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, guess: np.ndarray
+) -> np.ndarray:
+    """`point_to_surface` against the whole mesh, without building a search structure over all
+    of it: the distances to the faces `guess` (a subset) bound the true ones from above, so only
+    faces that reach into the points' box grown by those distances can be nearer. On a long
+    recording's ground truth (millions of faces) a window's evaluation stays the size of what
+    its cameras saw."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    bound = point_to_surface(pts, vertices, guess)
+    if len(pts) == 0 or not np.all(np.isfinite(bound)):
+        return point_to_surface(pts, vertices, faces)
+    lo = (pts - bound[:, None]).min(0)
+    hi = (pts + bound[:, None]).max(0)
+    reach = faces_in_box(vertices, faces, lo, hi)
+    if len(reach) == len(np.asarray(faces).reshape(-1, 3)):
+        return point_to_surface(pts, vertices, faces)
+    return np.minimum(bound, point_to_surface(pts, vertices, reach))
+
+
+def faces_in_box(
+    vertices: np.ndarray, faces: np.ndarray, lo: np.ndarray, hi: np.ndarray, chunk: int = 1 << 20
+) -> np.ndarray:
+    """Faces whose bounding box overlaps the box [lo, hi] (a superset of those meeting it),
+    in chunks of faces so a large mesh needs no (F, 3, 3) array."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    keep = np.zeros(len(f), bool)
+    for a in range(0, len(f), chunk):
+        tri = v[f[a : a + chunk]]  # (n, 3 corners, 3 axes)
+        keep[a : a + chunk] = ((tri.max(1) >= lo) & (tri.min(1) <= hi)).all(1)
+    return f[keep]
 
 
 def transform_points(points: np.ndarray, s: float, R: np.ndarray, t: np.ndarray) -> np.ndarray:
