@@ -113,3 +113,16 @@ def test_a_local_worker_ends_with_the_process_that_started_it(tmp_path: Path) ->
         time.sleep(0.1)
     os.kill(worker, signal.SIGKILL)
     raise AssertionError("the worker outlived its parent by 10 s")
+
+
+def _pid(_: int) -> int:
+    return os.getpid()
+
+
+def test_each_case_gets_a_fresh_local_worker() -> None:
+    """A worker's memory goes with it: the next case starts in a new process."""
+    from endopipe.pipeline.executors import local_executor
+
+    with local_executor(1, 1) as ex:
+        pids = list(ex.map(_pid, range(3)))
+    assert len(set(pids)) == 3
