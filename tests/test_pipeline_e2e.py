@@ -63,6 +63,16 @@ def test_every_stage_ran_and_wrote_its_contract(first_run: tuple[Path, float]) -
     # the report says how many and why.
     summary = json.loads((case / "05_depth" / "manifest.json").read_text())["summary"]
     assert 0 <= summary["hazy_share"] <= summary["unknown_share"] < UNKNOWN_AT_MOST, summary
+    # Every depth map has its views map; the pixels other views agree with hold the better
+    # depth (in a closed tube the few pixels no other view sees are its far ends and rims).
+    depth_files = sorted(p.name for p in (case / "05_depth" / "depth").glob("*.npy"))
+    assert sorted(p.name for p in (case / "05_depth" / "views").glob("*.npy")) == depth_files
+    assert (
+        summary["seen_again_share"] + summary["one_view_share"]
+        <= 1.0 + 1e-9 - summary["unknown_share"]
+    )
+    by = depth["by_support"]
+    assert by["seen_again"]["abs_rel"] < by["one_view"]["abs_rel"], by
     mesh = json.loads((case / "06_mesh" / "metrics.json").read_text())
     assert mesh["evaluated"] and mesh["chamfer_pct_radius"] < 60, mesh
     report = (case / "07_report" / "report.html").read_text()

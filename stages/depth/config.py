@@ -86,6 +86,21 @@ class DepthConfig(StageConfig):
         "(a tenth of its pixels: 167 ms a map instead of 30) and on 85% on the bench colon "
         "(0.3% of its pixels; coverage 0.996 instead of 0.993, Chamfer 4.40% instead of 4.36%).",
     )
+    support_frames: int = Field(
+        6,
+        ge=0,
+        description="Views maps: how many nearby frames each depth pixel is checked against "
+        "(its surface point projected into them, their depth asked; 0: no views maps).",
+    )
+    support_tolerance: float = Field(
+        0.05,
+        gt=0.0,
+        description="Views maps: a view agrees when its depth is within this share of the "
+        "point's depth in it.",
+    )
+    seen_again_views: int = Field(
+        2, ge=1, description="Views maps: agreeing views for a depth to count as seen again."
+    )
     preview: bool = Field(True, description="Write preview.mp4 (RGB | depth | error).")
     preview_fps: int = Field(10, ge=1, description="Frame rate of preview.mp4.")
     colour: bool = Field(

@@ -98,6 +98,32 @@ def evaluate(
     return metrics
 
 
+def scores_by_support(
+    gt: GroundTruthSource | None,
+    ingest: IngestView,
+    depths: dict[int, np.ndarray],
+    gt_depths: dict[int, np.ndarray],
+    seen_again: dict[int, np.ndarray],
+) -> dict[str, dict]:
+    """The headline protocol block of ours on the pixels other views agree with and on the
+    rest: do the views maps tell the better depth from the worse?"""
+    ids = [i for i in sorted(gt_depths) if i in seen_again]
+    if not ids:
+        return {}
+    relative = getattr(gt, "kind", "exact") == "relative"
+    sequence = affine_sequence_metrics if relative else depth_sequence_metrics
+    block = "affine_invariant" if relative else "median_scaled"
+    truth = [gt_depths[i] for i in ids]
+    fov = ingest.fov()
+    inside = fov > 0 if fov is not None else None
+    out = {}
+    for name, keep in (("seen_again", True), ("one_view", False)):
+        ours = [np.where(seen_again[i] == keep, depths[i], 0.0).astype(np.float32) for i in ids]
+        if any((d > 0).any() for d in ours):
+            out[name] = sequence(ours, truth, [inside] * len(ids), ids)[block]
+    return out
+
+
 def headline_coverage(metrics: dict) -> float | None:
     """Ours' coverage for the stage summary: the median-scaled block's, or for a relative
     ground truth the affine-invariant block's (the same pixels either way)."""

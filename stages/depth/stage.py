@@ -18,10 +18,16 @@ from endopipe.pipeline.stage import Stage, StageContext, write_json
 from endopipe.stages.camera import lens_valid_mask
 from endopipe.stages.centerline.view import CenterlineView
 from endopipe.stages.depth.config import DepthConfig
-from endopipe.stages.depth.evaluate import evaluate, ground_truth_depths, headline_coverage
+from endopipe.stages.depth.evaluate import (
+    evaluate,
+    ground_truth_depths,
+    headline_coverage,
+    scores_by_support,
+)
 from endopipe.stages.depth.preview import write_preview
 from endopipe.stages.depth.renderer import FieldSight
 from endopipe.stages.depth.summary import DepthSummary
+from endopipe.stages.depth.support import write_support
 from endopipe.stages.depth.view import (
     DEPTH_DIR,
     METRICS_FILE,
@@ -44,7 +50,7 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    version = 6  # 6: rays the fine bake misses answered by a far bake
+    version = 7  # 7: views and inferred maps
     Config = DepthConfig
 
     @classmethod
@@ -84,9 +90,13 @@ class Depth(Stage):
                     rgbs[i] = out["rgb"]
                 advance(info=f"{1000 * times[-1]:.0f} ms/frame")
         png_scale = write_depth_pngs(ctx.out / DEPTH_DIR, depths)
+        support = write_support(ctx.out, cfg, ingest, depths, c2w, k, beyond_lens)
         gt = ingest.ground_truth_for_scores(ctx.log)
         gt_depths = ground_truth_depths(gt, ingest, list(depths))
         metrics = evaluate(gt, ingest, depths, gt_depths, rgbs, principal=(k.cx, k.cy))
+        if support is not None and gt_depths:
+            by = scores_by_support(gt, ingest, depths, gt_depths, support.seen_again_maps)
+            metrics["by_support"] = by or None
         write_json(ctx.out / METRICS_FILE, metrics)
         if cfg.preview:
             affine = metrics.get("gt_kind") == "relative"
@@ -107,6 +117,13 @@ class Depth(Stage):
             f"pixels, {hazy_px / pixels:.1%} for a ray spread over no one surface "
             "(depth.max_spread)"
         )
+        if support is not None:
+            ctx.log(
+                f"views: {support.seen_again / pixels:.1%} of the lens's pixels have a depth "
+                f"{cfg.seen_again_views} other views agree with, {support.one_view / pixels:.1%} "
+                f"one no other view confirms; {support.inferred / pixels:.1%} lie under their "
+                "frame's own mask (inferred)"
+            )
         return DepthSummary(
             frames=len(depths),
             units=poses.file.units,
@@ -121,6 +138,9 @@ class Depth(Stage):
             coverage=headline_coverage(metrics),
             unknown_share=unknown_px / pixels,
             hazy_share=hazy_px / pixels,
+            seen_again_share=support.seen_again / pixels if support else None,
+            one_view_share=support.one_view / pixels if support else None,
+            inferred_share=support.inferred / pixels if support else None,
             baselines=metrics.get("baselines"),
             heldout_psnr=metrics.get("heldout_psnr"),
             heldout_ssim=metrics.get("heldout_ssim"),

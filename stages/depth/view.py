@@ -1,5 +1,6 @@
-"""05_depth (DESIGN §3): depth/<index>.npy, opacity/<index>.npy, 16-bit PNGs, metrics.json,
-preview.mp4. `DepthView` is the only reader of the folder; `DepthMetrics` is metrics.json."""
+"""05_depth (DESIGN §3): depth/<index>.npy, opacity/<index>.npy, views/<index>.npy,
+inferred/<index>.npy, 16-bit PNGs, metrics.json, preview.mp4. `DepthView` is the only reader of
+the folder; `DepthMetrics` is metrics.json."""
 
 from __future__ import annotations
 
@@ -15,6 +16,8 @@ from endopipe.stages.metrics.scores import DepthScores, ProtocolScores
 
 DEPTH_DIR = "depth"
 OPACITY_DIR = "opacity"
+VIEWS_DIR = "views"
+INFERRED_DIR = "inferred"
 METRICS_FILE = "metrics.json"
 PREVIEW_FILE = "preview.mp4"
 
@@ -45,6 +48,9 @@ class DepthMetrics(BaseModel):
     heldout_psnr: float | None = None
     heldout_ssim: float | None = None
     per_frame_image: dict[str, dict[str, float]] | None = None
+    #: ours on the pixels other views agree with ("seen_again") and on the rest ("one_view"),
+    #: each with the headline protocol block (median-scaled, or affine-invariant)
+    by_support: dict[str, DepthScores] | None = None
 
 
 class DepthView:
@@ -75,6 +81,19 @@ class DepthView:
     def opacity(self, index: int) -> np.ndarray | None:
         """Accumulated opacity of the rendered rays (0..1), or None when not written."""
         path = self.folder / OPACITY_DIR / frame_file(index)
+        return np.load(path) if path.is_file() else None
+
+    def views(self, index: int) -> np.ndarray | None:
+        """uint8 per depth pixel: how many nearby frames see its surface point where their own
+        depth puts it (`support.consistent_views`; 0 where no depth), or None when not written.
+        A count of observations, not a measure of accuracy (docs/results.md)."""
+        path = self.folder / VIEWS_DIR / frame_file(index)
+        return np.load(path) if path.is_file() else None
+
+    def inferred(self, index: int) -> np.ndarray | None:
+        """Pixels whose depth lies under the frame's own mask (a specular highlight, a masked
+        tool): the field's surface there, never observed in this frame; None when not written."""
+        path = self.folder / INFERRED_DIR / frame_file(index)
         return np.load(path) if path.is_file() else None
 
     @property

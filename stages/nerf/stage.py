@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -175,6 +177,48 @@ def build_frames(ingest, poses, device: torch.device):
     return ids, k, images, masks, c2w
 
 
+@dataclass
+class TrainingSetUp:
+    """What training starts from: the settings as fitted to the case, the trainer, the frames."""
+
+    cfg: NerfConfig
+    trainer: Trainer
+    prior: object
+    ids: list[int]  # registered frames, endopipe order
+    camera: Camera
+    c2w: list[np.ndarray]  # world, by position in ids
+    train_ids: list[int]
+    held_ids: list[int]
+    pos: dict[int, int]  # frame -> position in ids
+    refine: bool
+
+
+def set_up_training(
+    cfg: NerfConfig, ingest, poses, centerline, out: Path, log: Callable[[str], None]
+) -> TrainingSetUp:
+    """The prior, the scene box, the frames, the SfM-point depth and the trainer, as the stage
+    trains them (scripts/bench_nerf_step.py times steps of the same trainer)."""
+    device = pick_device(cfg.train.device)
+    prior = load_prior(centerline)
+    cfg = weigh_prior(cfg, prior, log)
+    ids, k, images, masks, c2w = build_frames(ingest, poses, device)
+    box = fit_box(c2w, k, images.shape[1:3], prior, cfg, poses.points(), log)
+    cfg = regularise_far_view(cfg, box, log)
+    frames = FrameSet(images, masks, np.stack([box.c2w_to_scene(c) for c in c2w]), k, ids, device)
+    train_ids, held_ids = holdout_split(ids, cfg.train.holdout_every)
+    pos = {i: p for p, i in enumerate(ids)}
+    sparse = None
+    if cfg.loss.sparse_weight > 0:
+        train_pos = {i: pos[i] for i in train_ids}
+        sparse = load_sparse_depth(ingest, poses, train_pos, box, cfg, device)
+        log(f"sparse depth: {len(sparse) if sparse else 0} SfM-point rays")
+    refine = refinement_wanted(cfg.pose_refine.mode, poses.file.source)
+    trainer = Trainer(
+        cfg, frames, [pos[i] for i in train_ids], prior, box, out, log, sparse, refine
+    )
+    return TrainingSetUp(cfg, trainer, prior, ids, k, c2w, train_ids, held_ids, pos, refine)
+
+
 class Nerf(Stage):
     """NeRF with near-light shading and the lumen prior (TensoRF VM grid by default)."""
 
@@ -198,27 +242,9 @@ class Nerf(Stage):
             torch.set_num_threads(threads)
 
     def _run(self, ctx: StageContext, cfg: NerfConfig) -> NerfSummary:
-        device = pick_device(cfg.train.device)
         ingest, poses = ctx.input("ingest"), ctx.input("poses")
-        prior = load_prior(ctx.input("centerline"))
-        cfg = weigh_prior(cfg, prior, ctx.log)
-        ids, k, images, masks, c2w = build_frames(ingest, poses, device)
-        box = fit_box(c2w, k, images.shape[1:3], prior, cfg, poses.points(), ctx.log)
-        cfg = regularise_far_view(cfg, box, ctx.log)
-        frames = FrameSet(
-            images, masks, np.stack([box.c2w_to_scene(c) for c in c2w]), k, ids, device
-        )
-        train_ids, held_ids = holdout_split(ids, cfg.train.holdout_every)
-        pos = {i: p for p, i in enumerate(ids)}
-        sparse = None
-        if cfg.loss.sparse_weight > 0:
-            train_pos = {i: pos[i] for i in train_ids}
-            sparse = load_sparse_depth(ingest, poses, train_pos, box, cfg, device)
-            ctx.log(f"sparse depth: {len(sparse) if sparse else 0} SfM-point rays")
-        refine = refinement_wanted(cfg.pose_refine.mode, poses.file.source)
-        trainer = Trainer(
-            cfg, frames, [pos[i] for i in train_ids], prior, box, ctx.out, ctx.log, sparse, refine
-        )
+        run = set_up_training(cfg, ingest, poses, ctx.input("centerline"), ctx.out, ctx.log)
+        cfg, trainer = run.cfg, run.trainer
         if trainer.core_fraction < cfg.loss.core_fraction:
             ctx.log(
                 f"L_prior's empty core: {trainer.core_fraction:.2f} of the wall (loss."
@@ -238,43 +264,47 @@ class Nerf(Stage):
                 "result depends on the machine's speed and load"
             )
         trainer.save_checkpoint()  # a crash while evaluating resumes here, not steps back
-        held_refined = trainer.refine_heldout([pos[i] for i in held_ids])
-        c2w_used = trainer.world_poses(c2w)  # refined (world frame) when refinement ran
-        pose_summary = record(ctx.out, ids, held_ids, c2w, c2w_used, refine, held_refined)
+        held_refined = trainer.refine_heldout([run.pos[i] for i in run.held_ids])
+        c2w_used = trainer.world_poses(run.c2w)  # refined (world frame) when refinement ran
+        pose_summary = record(
+            ctx.out, run.ids, run.held_ids, run.c2w, c2w_used, run.refine, held_refined
+        )
         trainer.write_log(ctx.out / "train_log.csv")
         plot_log(trainer.rows, ctx.out / "loss.png")
         save_model(
             ctx.out / MODEL_FILE,
             trainer.model,
             {
-                "frame_ids": ids,
-                "train": train_ids,
-                "heldout": held_ids,
+                "frame_ids": run.ids,
+                "train": run.train_ids,
+                "heldout": run.held_ids,
                 "units": poses.file.units,
-                "pose_refine": refine,
+                "pose_refine": run.refine,
             },
         )
         model = trainer.model.eval()
         rays_per_s = cfg.train.batch_rays * trainer.step_i / max(trainer.elapsed, 1e-9)
-        evaluation = evaluate(model, prior, ingest, k, c2w_used, ids, held_ids, cfg, ctx)
+        evaluation = evaluate(
+            model, run.prior, ingest, run.camera, c2w_used, run.ids, run.held_ids, cfg, ctx
+        )
         (ctx.out / CHECKPOINT).unlink(missing_ok=True)
         write_json(ctx.out / "metrics.json", evaluation)
         return NerfSummary(
             steps=trainer.step_i,
             planned_steps=cfg.train.steps,
             budget_stopped=budget_stopped,
-            train_frames=len(train_ids),
-            heldout_frames=len(held_ids),
+            train_frames=len(run.train_ids),
+            heldout_frames=len(run.held_ids),
             train_s=round(trainer.elapsed, 2),
             rays_per_s=round(rays_per_s, 1),
             render_ms=evaluation.get("render_rgb_ms"),
             heldout_psnr=evaluation.get("psnr"),
             depth=evaluation.get("depth"),
             resumed_from=start,
-            device=str(device),
+            device=str(trainer.device),
             threads=torch.get_num_threads(),
             pose_refine=pose_summary,
-            grid_warp=box.warped,
+            grid_warp=trainer.box.warped,
             core_fraction=trainer.core_fraction,
         )
 

@@ -36,6 +36,8 @@ class PreviewRow:
     error: np.ndarray | None  # abs-rel error, NaN where not evaluated
     scale: float | None
     inside: np.ndarray | None = None  # the frame's mask (bool): where a depth is asked for
+    views: np.ndarray | None = None  # other nearby views that see this surface (uint8 count)
+    inferred: np.ndarray | None = None  # depth under the frame's own mask (bool)
 
 
 def _figure(width: float, height: float):
@@ -190,7 +192,8 @@ def plot_depth_preview(rows: list[PreviewRow], units: str, error_max: float) -> 
     from matplotlib import colormaps
 
     has_gt = any(r.gt is not None for r in rows)
-    ncols = 4 if has_gt else 2
+    has_views = any(r.views is not None for r in rows)
+    ncols = (4 if has_gt else 2) + has_views
     h, w = rows[0].depth.shape[:2]
     tile_w = 3.1
     fig = _figure(tile_w * ncols + 0.8, len(rows) * tile_w * h / w + 0.5)
@@ -249,8 +252,34 @@ def plot_depth_preview(rows: list[PreviewRow], units: str, error_max: float) -> 
                 axes[3].set_title(f"abs-rel error (mean {np.nanmean(row.error):.3f})", fontsize=8)
             else:
                 axes[3].text(0.5, 0.5, "not evaluated", ha="center", va="center", color="0.5")
+        if has_views:
+            _views_tile(fig, axes[-1], row, valid, inside, grey)
         for ax in axes:
             ax.set_xticks([])
             ax.set_yticks([])
     fig.tight_layout()
     return figure_uri(fig, "jpg", 90)
+
+
+def _views_tile(fig, ax, row: PreviewRow, valid, inside, grey) -> None:
+    """The views map: other views that see each depth pixel's surface (viridis), no depth
+    grey, inferred magenta."""
+    from matplotlib import colormaps
+
+    if row.views is None:
+        ax.text(0.5, 0.5, "no views map", ha="center", va="center", color="0.5")
+        return
+    cmap = colormaps["viridis"].with_extremes(bad=grey)
+    shown = np.ma.masked_where(~valid, row.views.astype(np.float32))
+    im = ax.imshow(shown, cmap=cmap, vmin=0.0, vmax=max(float(row.views.max()), 1.0), **NEAREST)
+    _paint(ax, ~inside if row.inferred is None else ~inside & ~row.inferred, (0.0, 0.0, 0.0))
+    if row.inferred is not None:
+        _paint(ax, row.inferred, (1.0, 0.0, 1.0))
+    cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02)
+    cb.ax.tick_params(labelsize=6)
+    alone = float((row.views == 0)[valid].mean()) if valid.any() else 0.0
+    ax.set_title(
+        f"other views that see it\n{100 * alone:.0f}% of depth seen by no other; "
+        "magenta = inferred",
+        fontsize=8,
+    )

@@ -36,6 +36,24 @@ def unknown_depth(s: DepthSummary) -> str | None:
     return f"{100 * unknown:.1f}% of the lens's pixels ({why})"
 
 
+def support_line(s: DepthSummary, dm) -> str | None:
+    """What the views maps found (None when the stage wrote none), with ours on the
+    pixels seen again and on the rest when there is a ground truth."""
+    if s.seen_again_share is None:
+        return None
+    line = (
+        f"{100 * s.seen_again_share:.1f}% of the lens's pixels have a depth nearby views agree "
+        f"with, {100 * (s.one_view_share or 0):.1f}% one no other view confirms; "
+        f"{100 * (s.inferred_share or 0):.1f}% lie under their frame's own mask (inferred)"
+    )
+    by = getattr(dm, "by_support", None) if dm is not None else None
+    if by and "seen_again" in by and "one_view" in by:
+        a, b = by["seen_again"].abs_rel, by["one_view"].abs_rel
+        if a is not None and b is not None:
+            line += f"; AbsRel {a:.4f} where seen again, {b:.4f} on the rest"
+    return line
+
+
 def renderer(s: DepthSummary) -> str:
     """The renderer's name, and what it does when the report knows it."""
     return f"{s.renderer}: {RENDERERS[s.renderer]}" if s.renderer in RENDERERS else s.renderer
@@ -73,6 +91,7 @@ def section_depth(data: CaseData, info: ReportInfo) -> str | None:
         s=s,
         renderer=renderer(s) if s is not None else "",
         unknown=unknown_depth(s) if s is not None else None,
+        support=support_line(s, dm) if s is not None else None,
         previews=depth_previews(data),
         show_video=show_video,
         video_src=video_uri(preview) if show_video and video_mb <= cfg.max_video_mb else None,

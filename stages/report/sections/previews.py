@@ -65,7 +65,10 @@ def preview_row(data: CaseData, index: int) -> PreviewRow:
         if valid.sum() > 10:
             error, scale, _ = scaled_error(depth, g, valid)
     shown = depth * scale if scale is not None else depth
-    return PreviewRow(index, src, rgb, shown, gt_depth, error, scale, mask)
+    views, inferred = data.depth.views(index), data.depth.inferred(index)
+    if views is not None and views.shape != depth.shape:
+        views = inferred = None
+    return PreviewRow(index, src, rgb, shown, gt_depth, error, scale, mask, views, inferred)
 
 
 def _shrink_row(row: PreviewRow, width: int) -> PreviewRow:
@@ -76,7 +79,10 @@ def _shrink_row(row: PreviewRow, width: int) -> PreviewRow:
         return None if a is None else cv2.resize(a, size, interpolation=cv2.INTER_NEAREST)
 
     rgb = None if row.rgb is None else cv2.resize(row.rgb, size, interpolation=cv2.INTER_AREA)
-    inside = None if row.inside is None else near(row.inside.astype(np.uint8)) > 0
+
+    def near_mask(a: np.ndarray | None) -> np.ndarray | None:
+        return None if a is None else near(a.astype(np.uint8)) > 0
+
     return PreviewRow(
         row.index,
         row.source_index,
@@ -85,7 +91,9 @@ def _shrink_row(row: PreviewRow, width: int) -> PreviewRow:
         near(row.gt),
         near(row.error),
         row.scale,
-        inside,
+        near_mask(row.inside),
+        near(row.views),
+        near_mask(row.inferred),
     )
 
 
@@ -119,5 +127,12 @@ def depth_previews(data: CaseData) -> Previews:
         caption += (
             " | ground truth (same colour scale) | abs-rel error after per-frame median "
             f"scaling (0 to {cfg.error_max:g}; grey = ground truth but no depth)"
+        )
+    if any(r.views is not None for r in rows):
+        caption += (
+            " | views: how many nearby frames see this pixel's surface point where their own "
+            "depth puts it (a count of observations, not of accuracy; magenta = under the "
+            "frame's own mask, a highlight or a tool: the field's surface there is inferred, "
+            "not observed)"
         )
     return Previews(Figure(uri, caption + "."), wide=has_gt, problems=bad)
