@@ -117,7 +117,7 @@ def scores_by_support(
     fov = ingest.fov()
     inside = fov > 0 if fov is not None else None
     out = {}
-    for name, keep in (("seen_again", True), ("one_view", False)):
+    for name, keep in (("seen_again", True), ("rest", False)):
         ours = [np.where(seen_again[i] == keep, depths[i], 0.0).astype(np.float32) for i in ids]
         if any((d > 0).any() for d in ours):
             out[name] = sequence(ours, truth, [inside] * len(ids), ids)[block]

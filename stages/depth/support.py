@@ -7,7 +7,7 @@ agree on was seen from several places; a point no other view confirms rests on o
 the field's guess between views). The maps come from one field, so views agree wherever they
 see its surface: the count says how often a surface was observed, not how accurate its depth
 is (on C3VD the error is the same at every count and parallax; on the bench colon the few
-pixels no other view sees are 4x worse). Pixels the frame's own mask left out (specular
+pixels fewer than two other views see are 4x worse). Pixels the frame's own mask left out (specular
 highlights, masked tools) get the surface under them from the field, fitted to the pixels
 around them and to other frames: they are flagged as inferred, never counted as observed.
 """

@@ -47,10 +47,11 @@ def support_line(s: DepthSummary, dm) -> str | None:
         f"{100 * (s.inferred_share or 0):.1f}% lie under their frame's own mask (inferred)"
     )
     by = getattr(dm, "by_support", None) if dm is not None else None
-    if by and "seen_again" in by and "one_view" in by:
-        a, b = by["seen_again"].abs_rel, by["one_view"].abs_rel
+    if by and "seen_again" in by and "rest" in by:
+        a, b = by["seen_again"].abs_rel, by["rest"].abs_rel
         if a is not None and b is not None:
-            line += f"; AbsRel {a:.4f} where seen again, {b:.4f} on the rest"
+            name = "SSI-AbsRel" if getattr(dm, "gt_kind", None) == "relative" else "AbsRel"
+            line += f"; {name} {a:.4f} where seen again, {b:.4f} on the rest"
     return line
 
 
