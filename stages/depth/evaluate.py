@@ -45,6 +45,19 @@ def guesses(
     }
 
 
+def protocol(gt: GroundTruthSource | None):
+    """The sequence scoring for this truth: a relative one (an affine proxy of depth) supports
+    no metric protocol, only the affine-invariant one."""
+    relative = getattr(gt, "kind", "exact") == "relative"
+    return affine_sequence_metrics if relative else depth_sequence_metrics
+
+
+def inside_view(ingest: IngestView) -> np.ndarray:
+    """The pixels inside the scope's field of view (every pixel when there is no fov mask)."""
+    fov = ingest.fov()
+    return fov > 0 if fov is not None else np.ones((ingest.height, ingest.width), bool)
+
+
 def evaluate(
     gt: GroundTruthSource | None,
     ingest: IngestView,
@@ -62,12 +75,10 @@ def evaluate(
     (`DepthMetrics` reads it back)."""
     metrics: dict = {}
     if gt_depths:
-        fov = ingest.fov()
-        inside = fov > 0 if fov is not None else np.ones((ingest.height, ingest.width), bool)
+        inside = inside_view(ingest)
         ids = sorted(gt_depths)
         kind = getattr(gt, "kind", "exact")
-        # A relative ground truth (an affine proxy of depth) supports no metric protocol.
-        sequence = affine_sequence_metrics if kind == "relative" else depth_sequence_metrics
+        sequence = protocol(gt)
         ours = [depths[i] for i in ids]
         truth = [gt_depths[i] for i in ids]
         masks = [inside] * len(ids)
@@ -110,12 +121,10 @@ def scores_by_support(
     ids = [i for i in sorted(gt_depths) if i in seen_again]
     if not ids:
         return {}
-    relative = getattr(gt, "kind", "exact") == "relative"
-    sequence = affine_sequence_metrics if relative else depth_sequence_metrics
-    block = "affine_invariant" if relative else "median_scaled"
+    sequence = protocol(gt)
+    block = "affine_invariant" if sequence is affine_sequence_metrics else "median_scaled"
     truth = [gt_depths[i] for i in ids]
-    fov = ingest.fov()
-    inside = fov > 0 if fov is not None else None
+    inside = inside_view(ingest)
     out = {}
     for name, keep in (("seen_again", True), ("rest", False)):
         ours = [np.where(seen_again[i] == keep, depths[i], 0.0).astype(np.float32) for i in ids]
