@@ -16,6 +16,7 @@ from endopipe.stages.report.sections.scores import per_frame_series, score_table
 
 if TYPE_CHECKING:
     from endopipe.stages.depth.summary import DepthSummary
+    from endopipe.stages.depth.view import DepthMetrics
 
 RENDERERS = {
     "baked": "the surface baked from the field once, then ray cast",
@@ -36,7 +37,7 @@ def unknown_depth(s: DepthSummary) -> str | None:
     return f"{100 * unknown:.1f}% of the lens's pixels ({why})"
 
 
-def support_line(s: DepthSummary, dm) -> str | None:
+def support_line(s: DepthSummary, dm: DepthMetrics | None) -> str | None:
     """What the views maps found (None when the stage wrote none), with ours on the
     pixels seen again and on the rest when there is a ground truth."""
     if s.seen_again_share is None:
@@ -46,11 +47,11 @@ def support_line(s: DepthSummary, dm) -> str | None:
         f"with, {100 * (s.one_view_share or 0):.1f}% one no other view confirms; "
         f"{100 * (s.inferred_share or 0):.1f}% lie under their frame's own mask (inferred)"
     )
-    by = getattr(dm, "by_support", None) if dm is not None else None
+    by = dm.by_support if dm is not None else None
     if by and "seen_again" in by and "rest" in by:
         a, b = by["seen_again"].abs_rel, by["rest"].abs_rel
         if a is not None and b is not None:
-            name = "SSI-AbsRel" if getattr(dm, "gt_kind", None) == "relative" else "AbsRel"
+            name = "SSI-AbsRel" if dm.gt_kind == "relative" else "AbsRel"
             line += f"; {name} {a:.4f} where seen again, {b:.4f} on the rest"
     return line
 
