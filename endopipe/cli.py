@@ -60,6 +60,13 @@ WindowOption = Annotated[
 OverlapOption = Annotated[
     int, typer.Option(min=3, help="A recording: keyframes shared by neighbouring windows.")
 ]
+LightScaleOption = Annotated[
+    bool,
+    typer.Option(
+        help="A recording: redraw the joined path for the scale drift the light measures "
+        "(assumes a fixed exposure; off for a scope with auto-exposure)."
+    ),
+]
 
 
 #: The DAG in order: each stage's module and class.
@@ -118,6 +125,7 @@ def run(
     quiet: Annotated[bool, typer.Option(help="No progress output.")] = False,
     window: WindowOption = 100,
     overlap: OverlapOption = 12,
+    light_scale: LightScaleOption = True,
     executor: Annotated[
         str, typer.Option(help="Where a recording's windows run: local | slurm | ray.")
     ] = "local",
@@ -149,7 +157,9 @@ def run(
         dry_run=dry_run,
         wait=wait,
         quiet=quiet,
-        recording=recording_options(window, overlap, executor, jobs, cluster_config, ray_address),
+        recording=recording_options(
+            window, overlap, executor, jobs, cluster_config, ray_address, light_scale
+        ),
         case_fn=batch_case,
     )
 
@@ -161,6 +171,7 @@ def recording_options(
     jobs: int | None,
     cluster_config: Path | None,
     ray_address: str | None,
+    light_scale: bool = True,
 ) -> RecordingOptions:
     """How `run` and `batch` cut a long input into windows and where the windows run."""
     from endopipe.commands.recording.command import RecordingOptions
@@ -172,6 +183,7 @@ def recording_options(
         jobs=jobs,
         cluster_config=str(cluster_config) if cluster_config else None,
         ray_address=ray_address,
+        light_scale=light_scale,
     )
 
 
@@ -416,6 +428,7 @@ def batch(
     ] = None,
     window: WindowOption = 100,
     overlap: OverlapOption = 12,
+    light_scale: LightScaleOption = True,
     dry_run: Annotated[bool, typer.Option(help="List the cases and readers only.")] = False,
 ) -> None:
     """Run every case under FOLDER through the pipeline; write batch.csv and batch.html. A long
@@ -436,7 +449,9 @@ def batch(
         until=until,
         cluster_config=cluster_config,
         ray_address=ray_address,
-        recording=recording_options(window, overlap, executor, jobs, cluster_config, ray_address),
+        recording=recording_options(
+            window, overlap, executor, jobs, cluster_config, ray_address, light_scale
+        ),
         dry_run=dry_run,
         console=console,
         out=out,

@@ -27,7 +27,13 @@ from endopipe.commands.batch.rows import CaseRow, CaseTask
 from endopipe.commands.recording.frames import pose_every_frame
 from endopipe.commands.recording.fuse import one_mesh
 from endopipe.commands.recording.join import Joined, join_windows
-from endopipe.commands.recording.summary import RecordingSummary, summarise
+from endopipe.commands.recording.light_scale import LightScale, correct_drift
+from endopipe.commands.recording.summary import (
+    RecordingSummary,
+    joined_ate,
+    light_line,
+    summarise,
+)
 from endopipe.commands.recording.windows import WindowPlan, plan_windows
 from endopipe.pipeline.errors import EndopipeError, InputError
 from endopipe.pipeline.executors import ClusterConfig, load_cluster_config
@@ -38,7 +44,7 @@ RECORDING_DIR = "recording"
 WINDOWS_DIR = "windows"
 KEY_FILE = "key.json"
 #: Bumped when what the recording writes from the same windows changes.
-RECORDING_VERSION = 1
+RECORDING_VERSION = 2
 
 
 class RecordingOptions(BaseModel):
@@ -50,6 +56,9 @@ class RecordingOptions(BaseModel):
     jobs: int | None = Field(None, ge=1, description="Windows at once.")
     cluster_config: str | None = None
     ray_address: str | None = None
+    light_scale: bool = Field(
+        True, description="Redraw the joined path for the scale drift the light measures."
+    )
 
 
 def is_long_input(
@@ -147,7 +156,7 @@ def run_recording(
         on_row=lambda row: _print_window(console, row),
         note=lambda m: console.print(f"[dim]{escape(m)}[/dim]"),
     )
-    key = recording_key(pipe, case_dir, plan, configs, until, info)
+    key = recording_key(pipe, case_dir, plan, configs, until, info, options.light_scale)
     final = case_dir / RECORDING_DIR
     if all(r.status == "ok" and not r.stages_ran for r in rows) and _stored_key(final) == key:
         summary = RecordingSummary.model_validate_json((final / "summary.json").read_text())
@@ -160,7 +169,12 @@ def run_recording(
     ]
     joined = join_windows([plan.name(k) for k in range(len(plan.windows))], poses, plan.windows)
     truth = _truth_poses(ingest)
+    as_joined = joined
+    joined, light = _redraw_for_light(pipe, windows_dir, joined, configs, ingest, options, until)
     summary = summarise(plan, rows, joined, truth)
+    summary.light_scale = light
+    if light.applied:
+        summary.ate_as_joined_pct = joined_ate(as_joined, truth)[0]
     staging = case_dir / f".{RECORDING_DIR}.tmp"
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir()
@@ -191,6 +205,24 @@ def run_recording(
     return summary
 
 
+def _redraw_for_light(
+    pipe: Pipeline,
+    windows_dir: Path,
+    joined: Joined,
+    configs: dict[str, StageConfig],
+    ingest,
+    options: RecordingOptions,
+    until: str | None,
+) -> tuple[Joined, LightScale]:
+    """The joined path redrawn for the scale drift the light measures, when asked and the
+    windows have depth maps to measure it with."""
+    if not options.light_scale:
+        return joined, LightScale(applied=False, reason="not asked (--no-light-scale)")
+    if until is not None and pipe.index(until) < pipe.index("depth"):
+        return joined, LightScale(applied=False, reason="no depth maps yet to measure it with")
+    return correct_drift(pipe, windows_dir, joined, ingest, configs["mesh"].min_opacity)
+
+
 def recording_key(
     pipe: Pipeline,
     case_dir: Path,
@@ -198,10 +230,11 @@ def recording_key(
     configs: dict[str, StageConfig],
     until: str | None,
     info: CaseInfo,
+    light_scale: bool,
 ) -> str:
     """What recording/ is made from: the input and its ingest (the timeline), the windows'
-    keyframes, every window stage's own cache key, the settings the join reads (depth, mesh)
-    and how far the run goes."""
+    keyframes, every window stage's own cache key, the settings the join reads (depth, mesh,
+    whether the path is redrawn for the light's scale) and how far the run goes."""
     windows_dir = case_dir / WINDOWS_DIR
     ingest = pipe.manifest(case_dir, "ingest")
     stages = {
@@ -218,6 +251,7 @@ def recording_key(
         "windows": plan.windows,
         "stages": stages,
         "until": until,
+        "light_scale": light_scale,
         "depth": configs["depth"].model_dump(mode="json"),
         "mesh": configs["mesh"].model_dump(mode="json"),
     }
@@ -341,5 +375,7 @@ def _print_summary(
     )
     for reason in summary.reasons:
         console.print(f"  [yellow]{escape(reason)}[/yellow]", soft_wrap=True)
+    if summary.light_scale is not None:
+        console.print(f"  [dim]{escape(light_line(summary))}[/dim]", soft_wrap=True)
     if summary.windows and all(w.status != "ok" for w in summary.windows):
         raise EndopipeError("every window of the recording failed; see the table above")

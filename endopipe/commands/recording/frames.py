@@ -55,7 +55,7 @@ class Reference:
 class WindowSight:
     """One window's keyframes, camera and field, loaded when a frame first needs them."""
 
-    def __init__(self, pipe: Pipeline, folder: Path, depth_cfg: Any, scale: float) -> None:
+    def __init__(self, pipe: Pipeline, folder: Path, depth_cfg: Any) -> None:
         from endopipe.stages.depth.renderer import FieldSight
         from endopipe.stages.mesh.inputs import valid_depth
 
@@ -67,7 +67,6 @@ class WindowSight:
         self.c2w = sight.c2w
         self.render = sight.render
         self.index = {f.source_index: f.index for f in self.ingest.frames}
-        self.scale = scale
         self._valid_depth = valid_depth
 
     def reference(self, source_index: int) -> Reference | None:
@@ -147,9 +146,8 @@ def every_frame(
         name = keys[before].window
         if name not in sights:
             sights.clear()  # one window's field in memory at a time
-            sights[name] = WindowSight(pipe, windows_dir / name, depth_cfg, joined.windows[name].s)
+            sights[name] = WindowSight(pipe, windows_dir / name, depth_cfg)
         sight = sights[name]
-        sim = joined.windows[name]
         if source_index in keys and keys[source_index].window == name:
             c2w, kind, inliers = sight.c2w[sight.index[source_index]], "keyframe", None
         else:
@@ -163,14 +161,15 @@ def every_frame(
             )
             continue
         depth = sight.render(sight.camera, c2w, None, colour=False)["depth"]
-        write_depth(source_index, (depth * np.float32(sim.s)).astype(np.float32), rgb)
+        scale = np.float32(joined.depth_scale(name, source_index))
+        write_depth(source_index, (depth * scale).astype(np.float32), rgb)
         out.append(
             FramePose(
                 source_index=source_index,
                 window=name,
                 kind=kind,
                 inliers=inliers,
-                c2w=sim.pose(c2w).tolist(),
+                c2w=joined.place(name, source_index, c2w).tolist(),
             )
         )
     return out

@@ -91,13 +91,14 @@ def fuse_recording(
         for f in frames:
             w = fields[f.window]
             i = w.index[f.source_index]
-            yield f, valid_depth(w.depth, i, cfg.min_opacity) * np.float32(w.scale)
+            scale = np.float32(joined.depth_scale(f.window, f.source_index))
+            yield f, valid_depth(w.depth, i, cfg.min_opacity) * scale
 
     trunc = cfg.depth_trunc or auto_depth_trunc((d for _, d in maps()), cfg.depth_trunc_percentile)
 
     def pose(f: Any) -> np.ndarray:  # where the window rendered it, in the segment's frame
         w = fields[f.window]
-        return joined.windows[f.window].pose(w.c2w[w.index[f.source_index]])
+        return joined.place(f.window, f.source_index, w.c2w[w.index[f.source_index]])
 
     views = (DepthFrame(d, pose(f), None, fields[f.window].camera) for f, d in maps())
     first = fields[frames[0].window].camera

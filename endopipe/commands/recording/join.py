@@ -61,6 +61,16 @@ class JoinedFrame(BaseModel):
     c2w: list[list[float]]
 
 
+class ScaleKnot(BaseModel):
+    """A keyframe where the segment's path was redrawn for scale drift (light_scale.py)."""
+
+    source_index: int
+    segment: int
+    factor: float = Field(description="Lengths here are multiplied by this.")
+    centre: list[float] = Field(description="The keyframe's centre as joined.")
+    redrawn: list[float] = Field(description="Its centre on the redrawn path.")
+
+
 class Joined(BaseModel):
     """The joined trajectory (recording/trajectory.json)."""
 
@@ -68,6 +78,43 @@ class Joined(BaseModel):
     junctions: list[Junction]
     segments: int
     windows: dict[str, Sim3] = Field(description="Each placed window's map into its segment.")
+    segment_of: dict[str, int] = Field(default_factory=dict, description="Each placed window's.")
+    knots: list[ScaleKnot] = Field(
+        default_factory=list, description="Where the path was redrawn (empty: as joined)."
+    )
+
+    def place(self, window: str, source_index: int, c2w: np.ndarray) -> np.ndarray:
+        """A camera of `window` (its own frame and units) in its segment's: the window's
+        similarity, then the redrawn path where the camera is."""
+        return self.redraw(
+            self.segment_of.get(window, -1), source_index, self.windows[window].pose(c2w)
+        )
+
+    def redraw(self, segment: int, source_index: int, pose: np.ndarray) -> np.ndarray:
+        """A camera of the segment as joined, on the redrawn path: its offset from the nearest
+        keyframe before it scaled as the path is there."""
+        knots = [k for k in self.knots if k.segment == segment]
+        if not knots:
+            return pose
+        at = [k.source_index for k in knots]
+        anchor = knots[max(int(np.searchsorted(at, source_index, side="right")) - 1, 0)]
+        factor = float(np.interp(source_index, at, [k.factor for k in knots]))
+        pose = pose.copy()
+        pose[:3, 3] = np.array(anchor.redrawn) + factor * (pose[:3, 3] - np.array(anchor.centre))
+        return pose
+
+    def depth_scale(self, window: str, source_index: int) -> float:
+        """What a depth map of `window` at this frame is multiplied by in its segment."""
+        segment = self.segment_of.get(window, -1)
+        knots = [k for k in self.knots if k.segment == segment]
+        factor = (
+            float(
+                np.interp(source_index, [k.source_index for k in knots], [k.factor for k in knots])
+            )
+            if knots
+            else 1.0
+        )
+        return self.windows[window].s * factor
 
 
 def fit_similarity(a: list[np.ndarray], b: list[np.ndarray]) -> Sim3:
@@ -169,4 +216,5 @@ def join_windows(
         junctions=junctions,
         segments=segment + 1,
         windows={n: s for n, (_, s) in placed.items()},
+        segment_of={n: seg for n, (seg, _) in placed.items()},
     )

@@ -12,6 +12,7 @@ import numpy as np
 from markupsafe import Markup, escape
 
 from endopipe.commands.recording.join import Joined
+from endopipe.commands.recording.summary import light_line
 from endopipe.commands.recording.windows import WindowPlan
 
 REASON_COLOURS = {
@@ -130,6 +131,7 @@ def write_report(
         ("keyframes / windows", f"{summary.keyframes} / {len(plan.windows)}"),
         ("segments", str(summary.segments)),
         ("ATE, joined trajectory (% of path)", fmt(summary.ate_percent_of_path)),
+        ("scale drift", escape(light_line(summary))),
         ("frames posed", f"{summary.frames_posed} of {summary.frames}" if summary.frames else "—"),
         (f"depth {absrel}, every posed frame", fmt(summary.depth_abs_rel_all_frames)),
         (f"depth {absrel}, keyframes", fmt(summary.depth_abs_rel_keyframes)),

@@ -7,6 +7,7 @@ from pydantic import BaseModel
 
 from endopipe.commands.batch.rows import CaseRow
 from endopipe.commands.recording.join import Joined
+from endopipe.commands.recording.light_scale import LightScale
 from endopipe.commands.recording.windows import WindowPlan
 
 
@@ -34,6 +35,8 @@ class RecordingSummary(BaseModel):
     reasons: list[str] = []
     ate_percent_of_path: float | None = None  # joined trajectory against the truth (segment 0)
     ate_frames: int | None = None
+    light_scale: LightScale | None = None  # the path's scale drift, measured from the light
+    ate_as_joined_pct: float | None = None  # the ATE before the path was redrawn for it
     frames: int | None = None  # frames from segment 0's first keyframe to its last
     frames_posed: int | None = None  # of them, posed (keyframes, and frames registered)
     # Depth of every posed frame with truth: "exact" truth is scored median-scaled, a "relative"
@@ -55,8 +58,6 @@ def summarise(
 ) -> RecordingSummary:
     """The recording's verdict: doubtful when a window failed or is doubtful, or the chain
     broke; the ATE of the first segment against the truth, when there is one."""
-    from endopipe.stages.metrics.depth import pose_metrics
-
     windows = [
         WindowRow(
             name=row.case,
@@ -75,13 +76,7 @@ def summarise(
     reasons = [f"{w.name} failed: {w.reason}" for w in windows if w.status != "ok"]
     reasons += [f"{w.name}: poses doubtful" for w in windows if w.pose_verdict == "doubtful"]
     reasons += [f"{j.a}-{j.b} not joined: {j.reason}" for j in joined.junctions if not j.joined]
-    ate = frames = None
-    if truth is not None:
-        est = {f.source_index: np.array(f.c2w) for f in joined.frames if f.segment == 0}
-        gt = {i: truth[i] for i in est if i < len(truth)}
-        if len(gt) >= 3:
-            m = pose_metrics(est, gt)
-            ate, frames = m["ate_percent_of_path"], int(m["frames"])
+    ate, frames = joined_ate(joined, truth)
     return RecordingSummary(
         keyframes=len({i for w in plan.windows for i in w}),
         windows=windows,
@@ -91,6 +86,39 @@ def summarise(
         reasons=reasons,
         ate_percent_of_path=ate,
         ate_frames=frames,
+    )
+
+
+def joined_ate(joined: Joined, truth: list[np.ndarray] | None) -> tuple[float | None, int | None]:
+    """The first segment's ATE (% of the path) against the truth and the keyframes it is over."""
+    from endopipe.stages.metrics.depth import pose_metrics
+
+    if truth is None:
+        return None, None
+    est = {f.source_index: np.array(f.c2w) for f in joined.frames if f.segment == 0}
+    gt = {i: truth[i] for i in est if i < len(truth)}
+    if len(gt) < 3:
+        return None, None
+    m = pose_metrics(est, gt)
+    return m["ate_percent_of_path"], int(m["frames"])
+
+
+def light_line(summary: RecordingSummary) -> str:
+    """One line on the scale drift the light measured, for the terminal and the report."""
+    light = summary.light_scale
+    if light is None:
+        return "scale from the light: not measured"
+    if not light.applied:
+        return f"scale from the light: path left as joined ({light.reason})"
+    before = (
+        f"; ATE as joined {summary.ate_as_joined_pct:.2f}% of the path"
+        if summary.ate_as_joined_pct is not None
+        else ""
+    )
+    return (
+        f"scale from the light: the joined path drifted {light.drift_range:.2f}x in scale over "
+        f"{light.frames} keyframes, redrawn without it (falloff {light.falloff:.2f}){before}; "
+        "assumes a fixed exposure (--no-light-scale for a scope with auto-exposure)"
     )
 
 
