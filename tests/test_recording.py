@@ -289,3 +289,24 @@ def test_a_short_clip_is_one_case_with_every_usable_frame(withdrawal: Path, tmp_
     assert kept["short"][1] is False and kept["long"][1] is True
     assert kept["short"][0] >= 120 - 12  # at most its 6 blurred and 6 washed-out frames dropped
     assert kept["long"][0] < kept["short"][0] / 2
+
+
+@pytest.mark.slow
+def test_a_withdrawal_through_windows_to_one_mesh_is_redrawn_by_the_light(
+    withdrawal: Path, tmp_path: Path
+) -> None:
+    """Every window through the field and its depth: the light measures the joined path's
+    scale, the redrawn path is no further from the truth than the joined one, and every frame's
+    depth and the one mesh, placed on it, score within bounds."""
+    wd = tmp_path / "wd"
+    args = ["run", str(withdrawal), "--workdir", str(wd), "--quiet", "--config", "fast"]
+    args += ["--set", "ingest.keyframes.mode=content", "--set", "nerf.train.steps=300"]
+    assert main([*args, "--window", "14", "--overlap", "5"]) == 0
+    summary = json.loads((wd / "withdrawal" / "recording" / "summary.json").read_text())
+    light = summary["light_scale"]
+    print(light, summary["ate_as_joined_pct"], summary["ate_percent_of_path"])
+    print(summary["depth_abs_rel_all_frames"], summary["chamfer_pct_radius"])
+    assert light["applied"] and light["falloff"] > 0.3
+    assert summary["ate_percent_of_path"] <= summary["ate_as_joined_pct"] + 0.1
+    assert summary["depth_abs_rel_all_frames"] < 0.1
+    assert summary["chamfer_pct_radius"] < 10.0
