@@ -7,7 +7,9 @@ import numpy as np
 
 from endopipe.commands.recording.join import Joined, JoinedFrame, ScaleKnot, Sim3
 from endopipe.commands.recording.light_scale import (
+    MAX_WINDOW_DRIFT,
     frame_light,
+    largest_window_drift,
     measure,
     redraw_centres,
 )
@@ -15,7 +17,9 @@ from endopipe.commands.recording.light_scale import (
 GAMMA = 2.2
 
 
-def _frames(drift: np.ndarray, flat: bool = False, seed: int = 0) -> list:
+def _frames(
+    drift: np.ndarray, flat: bool = False, seed: int = 0, exposure: np.ndarray | None = None
+) -> list:
     """Keyframes of a tube lit from the camera: true depths 5-60 units, albedo +-30%, an
     inverse-square light through a gamma; depth maps drawn `drift` times too large."""
     rng = np.random.default_rng(seed)
@@ -23,7 +27,8 @@ def _frames(drift: np.ndarray, flat: bool = False, seed: int = 0) -> list:
     for k, s in enumerate(drift):
         true = rng.uniform(5.0, 60.0, size=(64, 80))
         albedo = rng.uniform(0.7, 1.3, size=true.shape)
-        linear = albedo * (1.0 if flat else 60.0 / true**2)
+        gain = 1.0 if exposure is None else exposure[k]
+        linear = gain * albedo * (1.0 if flat else 60.0 / true**2)
         grey = np.clip(linear, 0, 1) ** (1 / GAMMA)
         rgb = np.repeat((grey * 255).astype(np.uint8)[..., None], 3, axis=2)
         found = frame_light(k, rgb, (true * s).astype(np.float32), rng)
@@ -84,3 +89,17 @@ def test_a_window_camera_is_placed_on_the_redrawn_path() -> None:
     assert np.allclose(
         Joined(**{**joined.model_dump(), "knots": []}).place("w000", 5, own)[2, 3], 22
     )
+
+
+def test_an_exposure_that_changes_is_not_taken_for_a_drift() -> None:
+    """A scope whose exposure halves mid-recording: the light reads it as a scale change far
+    steeper inside one window than SfM drifts, and the gate names that window; a true drift of
+    5% a window passes."""
+    n, per_window = 200, 40
+    windows = [f"w{k // per_window:03d}" for k in range(n)]
+    exposure = np.where(np.arange(n) < 100, 1.0, 0.5)
+    _, jumped = measure(_frames(np.ones(n), exposure=exposure))
+    name, span = largest_window_drift(jumped, windows)
+    assert span > MAX_WINDOW_DRIFT and name in ("w001", "w002")
+    _, drifted = measure(_frames(np.exp(np.linspace(0.1, -0.1, n))))
+    assert largest_window_drift(drifted, windows)[1] < MAX_WINDOW_DRIFT

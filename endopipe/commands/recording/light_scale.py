@@ -12,7 +12,8 @@ change on average along the recording, a frame whose depths are drawn `s` times 
 falloff `b` from the pixels within each frame (no assumed gamma). Smoothed along the path it is
 the drift; the camera path's steps and every depth map are divided by it. A scope whose exposure
 follows the scene (auto-exposure) breaks the assumption: `--no-light-scale` leaves the path as
-joined, and a falloff too flat to measure leaves it too (said in the summary).
+joined. So does a falloff too flat to measure, and a light that asks for more scale change
+inside one window than SfM drifts (an exposure that changed); the summary says which.
 """
 
 from __future__ import annotations
@@ -41,6 +42,9 @@ MIN_FALLOFF = 0.2
 #: not.
 SMOOTH_SIGMA = 25.0
 OUTLIER_SPAN = 11
+#: SfM drifts 2-6% in scale across a window (synthetic withdrawals, 14 windows); a light that asks
+#: for more than this inside one window has seen the exposure change, not the scale.
+MAX_WINDOW_DRIFT = 1.15
 
 
 class FrameLight(BaseModel):
@@ -60,6 +64,9 @@ class LightScale(BaseModel):
     frames: int = 0
     drift_range: float | None = Field(
         None, description="Largest over smallest smoothed scale along the path (1: no drift)."
+    )
+    window_drift: float | None = Field(
+        None, description="The same inside the window where it is largest."
     )
 
 
@@ -131,6 +138,16 @@ def measure(frames: list[FrameLight]) -> tuple[LightScale, np.ndarray | None]:
     return verdict, drift
 
 
+def largest_window_drift(drift: np.ndarray, windows: list[str]) -> tuple[str, float]:
+    """The window (each frame's, in path order) inside which the drift spans the most, and how
+    much (largest over smallest scale)."""
+    spans = {
+        name: float(np.exp(np.ptp(drift[[w == name for w in windows]]))) for name in set(windows)
+    }
+    name = max(spans, key=spans.__getitem__)
+    return name, spans[name]
+
+
 def redraw_centres(centres: np.ndarray, drift: np.ndarray) -> np.ndarray:
     """Camera centres along a path (in its order) with each step divided by the drift there
     (the mean of its two ends'); the first centre stays where it is."""
@@ -187,6 +204,15 @@ def correct_drift(
         return joined, verdict
     by_index = {f.source_index: f for f in joined.frames if f.segment == 0}
     frames = [by_index[light.source_index] for light in lights]
+    window, span = largest_window_drift(drift, [f.window for f in frames])
+    verdict.window_drift = span
+    if span > MAX_WINDOW_DRIFT:
+        verdict.applied = False
+        verdict.reason = (
+            f"the light asks for a {span:.2f}x scale change inside {window}, more than a window's "
+            f"SfM drifts ({MAX_WINDOW_DRIFT:.2f}x): the exposure changed, most likely"
+        )
+        return joined, verdict
     centres = np.array([np.array(f.c2w)[:3, 3] for f in frames])
     redrawn = redraw_centres(centres, drift)
     knots = [
