@@ -44,7 +44,7 @@ RECORDING_DIR = "recording"
 WINDOWS_DIR = "windows"
 KEY_FILE = "key.json"
 #: Bumped when what the recording writes from the same windows changes.
-RECORDING_VERSION = 2
+RECORDING_VERSION = 3
 
 
 class RecordingOptions(BaseModel):

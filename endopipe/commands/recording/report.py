@@ -109,6 +109,24 @@ def trajectory_figure(joined: Joined, truth: list[np.ndarray] | None) -> Markup:
     return _img(fig)
 
 
+def scale_figure(joined: Joined, light_text: str) -> Markup:
+    """What the light said about the path's scale: the factor each keyframe's lengths were
+    multiplied by (1: as joined), along the recording; or why the path is as joined."""
+    from matplotlib.figure import Figure
+
+    knots = [k for k in joined.knots if k.segment == 0]
+    note = Markup(f"<p class='muted'>{escape(light_text)}</p>")
+    if not knots:
+        return note
+    fig = Figure(figsize=(10, 2.2), dpi=110)
+    ax = fig.subplots()
+    ax.plot([k.source_index for k in knots], [k.factor for k in knots], lw=1.0)
+    ax.axhline(1.0, color="#90a4ae", lw=0.6)
+    ax.set_xlabel("frame")
+    ax.set_ylabel("length factor")
+    return note + _img(fig)
+
+
 def write_report(
     path: Path,
     name: str,
@@ -131,7 +149,7 @@ def write_report(
         ("keyframes / windows", f"{summary.keyframes} / {len(plan.windows)}"),
         ("segments", str(summary.segments)),
         ("ATE, joined trajectory (% of path)", fmt(summary.ate_percent_of_path)),
-        ("scale drift", escape(light_line(summary))),
+        ("ATE as joined, before the light's scale (% of path)", fmt(summary.ate_as_joined_pct)),
         ("frames posed", f"{summary.frames_posed} of {summary.frames}" if summary.frames else "—"),
         (f"depth {absrel}, every posed frame", fmt(summary.depth_abs_rel_all_frames)),
         (f"depth {absrel}, keyframes", fmt(summary.depth_abs_rel_keyframes)),
@@ -189,6 +207,11 @@ def write_report(
                 "key": "trajectory",
                 "title": "Trajectory",
                 "body": trajectory_figure(joined, truth),
+            },
+            {
+                "key": "scale",
+                "title": "Scale from the light",
+                "body": scale_figure(joined, light_line(summary)),
             },
         ],
     )
