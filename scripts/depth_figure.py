@@ -1,6 +1,10 @@
 """RGB | our depth | ground-truth panel for a few frames of a finished case (the README picture).
 
     .venv/bin/python scripts/depth_figure.py WORKDIR/CASE OUT.png --frames 5 35 65 [--relief]
+        [--beside WORKDIR/OTHER]
+
+`--beside` puts the same frames' depth from other runs of the same input after the case's own
+(two settings side by side).
 
 Each depth is coloured as in 05_depth/preview.mp4, over its own 2-98th percentile range; pixels
 with no depth are grey, outside the field of view black. The ground truth, when the case has one,
@@ -71,6 +75,7 @@ def main() -> None:
     parser.add_argument("out", type=Path)
     parser.add_argument("--frames", type=int, nargs="+", default=[5, 35, 65])
     parser.add_argument("--relief", action="store_true", help="add both surfaces, shaded")
+    parser.add_argument("--beside", type=Path, nargs="*", default=[], help="other runs' depth")
     args = parser.parse_args()
     ingest = IngestView(args.case / "01_ingest")
     depth = DepthView(args.case / "05_depth")
@@ -87,6 +92,7 @@ def main() -> None:
         rgb[~inside] = 0
         ours = depth.depth(i)
         panels = [rgb, colour(ours, inside)]
+        panels += [colour(DepthView(other / "05_depth").depth(i), inside) for other in args.beside]
         if i in truth:
             panels.append(colour(truth[i], inside))
         if args.relief:

@@ -26,6 +26,9 @@ from endopipe.stages.nerf.scene import SceneBox
 from endopipe.stages.nerf.sparse_depth import SparseDepth
 
 CHECKPOINT = "checkpoint.pt"
+#: A pixel no brighter than this (display-encoded, its brightest channel) saw nothing: the
+#: opacity loss asks no surface of its ray.
+SEEN_LEVEL = 0.05
 LOG_FIELDS = [
     "step",
     "loss",
@@ -288,8 +291,12 @@ class Trainer:
         if lc.sparse_weight > 0 and self.sparse is not None:
             terms["sparse"] = self._sparse_term()
             loss = loss + lc.sparse_weight * terms["sparse"]
-        if lc.opacity_weight > 0:  # a scope sees tissue along every ray, within its reach
-            valid = b.valid.float()
+        if lc.opacity_weight > 0 and self.pb.prior.kind == "none":
+            # A scope sees tissue along every ray, within its reach; a lumen prior asks that of
+            # the rays that meet its wall already (the wall term), and none of those down it.
+            # A black pixel saw nothing (outside the lens, beyond the light): no target there.
+            seen = b.rgb.amax(dim=-1) > SEEN_LEVEL
+            valid = (b.valid & seen).float()
             gap = (1.0 - out["opacity"]).clamp_min(0).square()
             terms["opacity"] = (gap * valid).sum() / valid.sum().clamp_min(1.0)
             loss = loss + lc.opacity_weight * terms["opacity"]
