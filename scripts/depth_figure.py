@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from endopipe.stages.camera.rays import image_directions
-from endopipe.stages.depth.evaluate import ground_truth_depths
+from endopipe.stages.depth.evaluate import ground_truth_depths, inside_view
 from endopipe.stages.depth.preview import colourise, has_depth
 from endopipe.stages.depth.view import DepthView
 from endopipe.stages.ingest.view import IngestView
@@ -79,8 +79,7 @@ def main() -> None:
     args = parser.parse_args()
     ingest = IngestView(args.case / "01_ingest")
     depth = DepthView(args.case / "05_depth")
-    fov = ingest.fov()
-    inside = fov > 0 if fov is not None else np.ones((ingest.height, ingest.width), bool)
+    inside = inside_view(ingest)
     source = ingest.ground_truth()
     truth = ground_truth_depths(source, ingest, args.frames)
     relative = source is not None and source.kind == "relative"

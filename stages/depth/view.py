@@ -80,20 +80,22 @@ class DepthView:
 
     def opacity(self, index: int) -> np.ndarray | None:
         """Accumulated opacity of the rendered rays (0..1), or None when not written."""
-        path = self.folder / OPACITY_DIR / frame_file(index)
-        return np.load(path) if path.is_file() else None
+        return self._optional(OPACITY_DIR, index)
 
     def views(self, index: int) -> np.ndarray | None:
         """uint8 per depth pixel: how many nearby frames see its surface point where their own
         depth puts it (`support.consistent_views`; 0 where no depth), or None when not written.
         A count of observations, not a measure of accuracy (docs/results.md)."""
-        path = self.folder / VIEWS_DIR / frame_file(index)
-        return np.load(path) if path.is_file() else None
+        return self._optional(VIEWS_DIR, index)
 
     def inferred(self, index: int) -> np.ndarray | None:
         """Pixels whose depth lies under the frame's own mask (a specular highlight, a masked
         tool): the field's surface there, never observed in this frame; None when not written."""
-        path = self.folder / INFERRED_DIR / frame_file(index)
+        return self._optional(INFERRED_DIR, index)
+
+    def _optional(self, sub: str, index: int) -> np.ndarray | None:
+        """A per-frame map of folder `sub`, or None when the stage did not write it."""
+        path = self.folder / sub / frame_file(index)
         return np.load(path) if path.is_file() else None
 
     @property

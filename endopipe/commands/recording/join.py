@@ -93,28 +93,28 @@ class Joined(BaseModel):
     def redraw(self, segment: int, source_index: int, pose: np.ndarray) -> np.ndarray:
         """A camera of the segment as joined, on the redrawn path: its offset from the nearest
         keyframe before it scaled as the path is there."""
-        knots = [k for k in self.knots if k.segment == segment]
-        if not knots:
+        found = self._redrawn_at(segment, source_index)
+        if found is None:
             return pose
-        at = [k.source_index for k in knots]
-        anchor = knots[max(int(np.searchsorted(at, source_index, side="right")) - 1, 0)]
-        factor = float(np.interp(source_index, at, [k.factor for k in knots]))
+        anchor, factor = found
         pose = pose.copy()
         pose[:3, 3] = np.array(anchor.redrawn) + factor * (pose[:3, 3] - np.array(anchor.centre))
         return pose
 
     def depth_scale(self, window: str, source_index: int) -> float:
         """What a depth map of `window` at this frame is multiplied by in its segment."""
-        segment = self.segment_of.get(window, -1)
+        found = self._redrawn_at(self.segment_of.get(window, -1), source_index)
+        return self.windows[window].s * (1.0 if found is None else found[1])
+
+    def _redrawn_at(self, segment: int, source_index: int) -> tuple[ScaleKnot, float] | None:
+        """The segment's knot at or before the frame (else its first) and the length factor
+        there (interpolated between knots); None where the segment was not redrawn."""
         knots = [k for k in self.knots if k.segment == segment]
-        factor = (
-            float(
-                np.interp(source_index, [k.source_index for k in knots], [k.factor for k in knots])
-            )
-            if knots
-            else 1.0
-        )
-        return self.windows[window].s * factor
+        if not knots:
+            return None
+        at = [k.source_index for k in knots]
+        anchor = knots[max(int(np.searchsorted(at, source_index, side="right")) - 1, 0)]
+        return anchor, float(np.interp(source_index, at, [k.factor for k in knots]))
 
 
 def fit_similarity(a: list[np.ndarray], b: list[np.ndarray]) -> Sim3:
