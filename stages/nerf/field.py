@@ -46,6 +46,17 @@ class RadianceField(nn.Module):
         super().__init__()
         self.cfg = cfg
         self.dir_dim = sinusoidal_dim(3, cfg.dir_bands) if cfg.view_dependent else 0
+        # Signed-distance geometry: grid units -> scene units (set by make_field), and the
+        # Laplace CDF's width now (a buffer: a loaded model renders with its last width).
+        self.half_extent = 1.0
+        self.register_buffer("beta", torch.tensor(cfg.sdf.beta_init), persistent=True)
+        # The starting distance on a coarse grid (1, 1, D, H, W) over [-1, 1]^3, set by the
+        # trainer from the prior; empty: a sphere seen from inside.
+        self.register_buffer("start", torch.zeros(0), persistent=True)
+
+    @property
+    def is_sdf(self) -> bool:
+        return self.cfg.geometry == "sdf"
 
     @property
     def cell(self) -> float:
@@ -53,8 +64,38 @@ class RadianceField(nn.Module):
         return 2.0 / 256
 
     def _activate(self, raw: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        sigma = F.softplus(raw + self.cfg.density_bias) * self.cfg.density_scale
+        if self.is_sdf:
+            sigma = laplace_density(self._signed(raw, x), self.beta)
+        else:
+            sigma = F.softplus(raw + self.cfg.density_bias) * self.cfg.density_scale
         return sigma * _inside(x).to(sigma.dtype)
+
+    def _signed(self, raw: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """The signed distance (scene units): a learned residual over the starting distance
+        (the prior's wall, or a sphere the cameras see from inside). The residual is scaled
+        down so that an optimiser step moves the surface by a small part of a radius."""
+        return self.starting_distance(x) + self.cfg.sdf.residual_scale * raw
+
+    def starting_distance(self, x: torch.Tensor) -> torch.Tensor:
+        if self.start.numel() == 0:  # no prior given: a sphere filling the box
+            return (0.9 - x.norm(dim=-1)) * self.half_extent
+        g = x.view(1, -1, 1, 1, 3).to(self.start.dtype)
+        v = F.grid_sample(self.start, g, mode="bilinear", padding_mode="border", align_corners=True)
+        return v.view(-1).to(x.dtype)
+
+    def signed_distance(self, x: torch.Tensor) -> torch.Tensor:
+        """d at grid points (signed-distance geometry only)."""
+        return self._signed(self._raw(x), x)
+
+    def _raw(self, x: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def set_beta(self, progress: float) -> None:
+        """Geometric schedule from beta_init to beta_final: a wide ramp lets the first steps
+        find the wall, a thin one puts the weight on one surface at the end."""
+        c = self.cfg.sdf
+        p = min(max(progress, 0.0), 1.0)
+        self.beta.fill_(c.beta_init * (c.beta_final / c.beta_init) ** p)
 
     def _dir_features(self, d: torch.Tensor | None, n: int, like: torch.Tensor) -> list:
         if not self.dir_dim:
@@ -82,6 +123,8 @@ class RadianceField(nn.Module):
     def on_progress(self, progress: float) -> bool:
         """Called before every step with the training progress in [0, 1]; True when the
         parameters were replaced (the optimiser must then be rebuilt)."""
+        if self.is_sdf:
+            self.set_beta(progress)
         return False
 
     def extra_loss(self) -> torch.Tensor | None:
@@ -124,8 +167,11 @@ class TensorfField(RadianceField):
     def cell(self) -> float:
         return 2.0 / (max(self.density_grid.res) - 1)
 
+    def _raw(self, x: torch.Tensor) -> torch.Tensor:
+        return self.density_grid(x).sum(-1)
+
     def density(self, x: torch.Tensor) -> torch.Tensor:
-        return self._activate(self.density_grid(x).sum(-1), x)
+        return self._activate(self._raw(x), x)
 
     def forward(self, x: torch.Tensor, d: torch.Tensor | None = None):
         prep = self.density_grid.prepare(x)  # both grids share their resolution
@@ -155,6 +201,7 @@ class TensorfField(RadianceField):
         self.res_now = torch.tensor(res)
 
     def on_progress(self, progress: float) -> bool:
+        super().on_progress(progress)
         res = self._res(self.cfg.tensorf.res_init)
         for at, r in self.schedule():
             if progress >= at:
@@ -186,8 +233,11 @@ class HashgridField(RadianceField):
     def _geo(self, x: torch.Tensor) -> torch.Tensor:
         return self.sigma_net(self.encoding(x))
 
+    def _raw(self, x: torch.Tensor) -> torch.Tensor:
+        return self._geo(x)[:, 0]
+
     def density(self, x: torch.Tensor) -> torch.Tensor:
-        return self._activate(self._geo(x)[:, 0], x)
+        return self._activate(self._raw(x), x)
 
     def forward(self, x: torch.Tensor, d: torch.Tensor | None = None):
         g = self._geo(x)
@@ -234,8 +284,11 @@ class PositionalField(RadianceField):
             h = F.relu(layer(h))
         return h
 
+    def _raw(self, x: torch.Tensor) -> torch.Tensor:
+        return self.sigma_head(self._trunk(x))[:, 0]
+
     def density(self, x: torch.Tensor) -> torch.Tensor:
-        return self._activate(self.sigma_head(self._trunk(x))[:, 0], x)
+        return self._activate(self._raw(x), x)
 
     def forward(self, x: torch.Tensor, d: torch.Tensor | None = None):
         h = self._trunk(x)
@@ -244,9 +297,21 @@ class PositionalField(RadianceField):
         return sigma, torch.sigmoid(self.color(f))
 
 
+def laplace_density(d: torch.Tensor, beta: torch.Tensor) -> torch.Tensor:
+    """VolSDF: sigma = Psi_beta(-d) / beta, Psi the Laplace CDF of scale beta. Half the peak
+    on the zero level, falling as exp(-d / beta) into free space."""
+    e = torch.exp(-d.abs() / beta)
+    psi = torch.where(d >= 0, 0.5 * e, 1.0 - 0.5 * e)
+    return psi / beta
+
+
 def make_field(cfg: FieldConfig, box_extent: tuple[float, float, float]) -> RadianceField:
+    field: RadianceField
     if cfg.encoding == "tensorf":
-        return TensorfField(cfg, box_extent)
-    if cfg.encoding == "hashgrid":
-        return HashgridField(cfg)
-    return PositionalField(cfg)
+        field = TensorfField(cfg, box_extent)
+    elif cfg.encoding == "hashgrid":
+        field = HashgridField(cfg)
+    else:
+        field = PositionalField(cfg)
+    field.half_extent = 0.5 * float(max(box_extent))
+    return field

@@ -35,7 +35,7 @@ FALLOFF_TERMS = 3
 
 
 #: Entries of the state dict added after model.pt files were first written.
-NEW_KEYS = ("exposure_trained", "falloff", "log_gamma")
+NEW_KEYS = ("exposure_trained", "falloff", "log_gamma", "field.beta")
 
 
 class NerfModel(nn.Module):
@@ -64,6 +64,9 @@ class NerfModel(nn.Module):
         newer than the state dict (the photometric model) keep their initial values."""
         own = super().state_dict()
         state = {**{k: own[k] for k in NEW_KEYS if k not in state}, **state}
+        start = state.get("field.start")
+        if start is not None and hasattr(self.field, "start"):
+            self.field.start = start.to(self.log_gain.device)
         res = state.get("field.res_now")
         if res is not None and hasattr(self.field, "set_resolution"):
             res = tuple(int(v) for v in res)
@@ -118,16 +121,35 @@ class NerfModel(nn.Module):
         """sigma at scene points (M, 3)."""
         return self.field.density(self.to_grid(x))
 
-    def normals(self, x: torch.Tensor) -> torch.Tensor:
-        """Unit normals -grad sigma / |grad sigma| at scene points (B, 3), central differences
-        with a step of `normal_eps` grid cells (cells of the unwarped core)."""
-        x = x.detach()
-        h = self.cfg.shading.normal_eps * self.field.cell * 0.5 * float(self.box.extent.max())
+    def signed_distance_scene(self, x: torch.Tensor) -> torch.Tensor:
+        """d at scene points (M, 3), positive in free space (signed-distance geometry)."""
+        return self.field.signed_distance(self.to_grid(x))
+
+    def _central_differences(self, fn, x: torch.Tensor, h: float) -> torch.Tensor:
+        """(fn(x + h e_i) - fn(x - h e_i)) / 2h for i = x, y, z: (M, 3)."""
         eye = torch.eye(3, device=x.device, dtype=x.dtype) * h
         pts = torch.cat([x[:, None, :] + eye, x[:, None, :] - eye], 1).reshape(-1, 3)
-        s = self.density_scene(pts).view(-1, 2, 3)
-        grad = s[:, 0] - s[:, 1]
-        return -grad / grad.norm(dim=-1, keepdim=True).clamp_min(1e-6)
+        s = fn(pts).view(-1, 2, 3)
+        return (s[:, 0] - s[:, 1]) / (2.0 * h)
+
+    def normals(self, x: torch.Tensor) -> torch.Tensor:
+        """Unit normals at scene points (B, 3), pointing into free space: -grad sigma, or grad d
+        for a signed distance (defined off the surface too, where sigma underflows); central
+        differences with a step of `normal_eps` grid cells (cells of the unwarped core)."""
+        x = x.detach()
+        h = self.cfg.shading.normal_eps * self.field.cell * 0.5 * float(self.box.extent.max())
+        if self.field.is_sdf:
+            grad = self._central_differences(self.signed_distance_scene, x, h)
+        else:
+            grad = -self._central_differences(self.density_scene, x, h)
+        return grad / grad.norm(dim=-1, keepdim=True).clamp_min(1e-6)
+
+    def eikonal(self, x: torch.Tensor) -> torch.Tensor:
+        """(|grad d| - 1)^2 at scene points, averaged: d stays a distance (one grid cell
+        differences, so no double backward through the grid)."""
+        h = self.field.cell * 0.5 * float(self.box.extent.max())
+        grad = self._central_differences(self.signed_distance_scene, x.detach(), h)
+        return (grad.norm(dim=-1) - 1.0).square().mean()
 
     # --- sampling -----------------------------------------------------------------------------
     def sample(self, o, d, near, far, jitter: bool, gen=None) -> torch.Tensor:

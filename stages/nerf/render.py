@@ -210,6 +210,8 @@ def surface_density_level(
     iso-level sits wherever the field's ramp in front of the wall crosses it (measured 4% in
     front of the rendered depth on a synthetic colon); this one follows the field. None when
     no ray becomes opaque."""
+    if model.field.is_sdf:  # the zero level, exactly: sigma = 1 / (2 beta) there
+        return float(0.5 / model.field.beta / model.box.scale)
     if not c2ws:
         return None
     c2ws = c2ws[:: max(1, len(c2ws) // cameras)]

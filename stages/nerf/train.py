@@ -23,6 +23,7 @@ from endopipe.stages.nerf.data import FrameSet, RaySampler, neighbours
 from endopipe.stages.nerf.model import NerfModel
 from endopipe.stages.nerf.pose_refine import PoseCorrection, corrected_world, lr_factor
 from endopipe.stages.nerf.scene import SceneBox
+from endopipe.stages.nerf.sdf_start import start_grid
 from endopipe.stages.nerf.sparse_depth import SparseDepth
 
 CHECKPOINT = "checkpoint.pt"
@@ -41,6 +42,7 @@ LOG_FIELDS = [
     "geo",
     "distortion",
     "sparse",
+    "eikonal",
     "pose_reg",
     "pose_deg",
     "pose_move",
@@ -111,6 +113,13 @@ class Trainer:
         gain = initial_gain(frames, train, self.pb, cfg.shading.gamma, self.gen)
         self.model = NerfModel(cfg, box, frames.n, gain=gain).to(self.device)
         self.model.set_trained_frames(train)
+        if self.model.field.is_sdf:
+            cams = frames.c2w[train, :3, 3]
+            start = start_grid(self.pb, cams, cfg.field.sdf.start_nodes)
+            self.model.field.start = start.to(self.device)
+            wall = self.pb.prior.kind != "none"
+            what = "the prior's wall" if wall else "spheres about the cameras"
+            log(f"signed distance: a residual over {what}")
         # Pose corrections of every frame (held-out ones are fitted after training).
         self.correction: PoseCorrection | None = None
         if refine_poses:
@@ -307,6 +316,9 @@ class Trainer:
             assert self.correction is not None
             terms["pose_reg"] = self.correction.penalty(self._train_t)
             loss = loss + cfg.pose_refine.l2 * terms["pose_reg"]
+        if self.model.field.is_sdf and cfg.field.sdf.eikonal_weight > 0:
+            terms["eikonal"] = self._eikonal_term(o, d, near, far)
+            loss = loss + cfg.field.sdf.eikonal_weight * terms["eikonal"]
         extra = self.model.field.extra_loss()
         if extra is not None:
             loss = loss + extra
@@ -324,6 +336,15 @@ class Trainer:
             vals["pose_deg"] = delta[:, :3].norm(dim=-1).mean() * (180.0 / math.pi)
             vals["pose_move"] = delta[:, 3:].norm(dim=-1).mean() * self.box.scale
         return vals
+
+    def _eikonal_term(self, o, d, near, far) -> torch.Tensor:
+        """The eikonal term at random points between the batch's near and far bounds (free
+        space, the wall and behind it alike)."""
+        n = self.cfg.field.sdf.eikonal_points
+        i = torch.randint(0, o.shape[0], (n,), device=o.device, generator=self.gen)
+        u = torch.rand(n, device=o.device, generator=self.gen)
+        t = near[i] + u * (far[i] - near[i])
+        return self.model.eikonal(o[i] + t[:, None] * d[i])
 
     def _sparse_term(self) -> torch.Tensor:
         """Rendered depth against the SfM points' depth on a random draw of tracked pixels."""
