@@ -74,3 +74,20 @@ def test_signed_distance_training_beats_the_density_field_on_the_tube(tmp_path):
     # The mesh and the baked depth read the zero level: sigma = 1 / (2 beta) there.
     level = surface_density_level(model, prior, k, poses)
     assert level == pytest.approx(0.5 / float(model.field.beta) / box.scale)
+
+
+def test_auto_geometry_is_a_signed_distance_over_a_cavity_only():
+    from endopipe.stages.centerline.prior import EllipsoidPrior
+    from endopipe.stages.nerf.config import NerfConfig
+    from endopipe.stages.nerf.stage import choose_geometry
+    from tests.tube_scene import tube_prior
+
+    cfg = NerfConfig()
+    assert cfg.field.geometry == "auto"
+    cavity = EllipsoidPrior(np.zeros(3), np.array([50.0, 40.0, 35.0]))
+    said: list[str] = []
+    assert choose_geometry(cfg, cavity, said.append).field.geometry == "sdf"
+    assert said and "signed distance" in said[0]
+    assert choose_geometry(cfg, tube_prior(), said.append).field.geometry == "density"
+    pinned = cfg.model_copy(update={"field": cfg.field.model_copy(update={"geometry": "density"})})
+    assert choose_geometry(pinned, cavity, said.append).field.geometry == "density"

@@ -163,6 +163,19 @@ def weigh_prior(cfg: NerfConfig, prior, log) -> NerfConfig:
     return cfg.model_copy(update={"loss": loss})
 
 
+def choose_geometry(cfg: NerfConfig, prior, log) -> NerfConfig:
+    """geometry auto: a signed distance over the cavity prior's wall, a density otherwise (see
+    `FieldConfig.geometry` for what was measured). Resolved before training, so the saved
+    model says which it is."""
+    if cfg.field.geometry != "auto":
+        return cfg
+    geometry = "sdf" if prior.kind == "cavity" else "density"
+    if geometry == "sdf":
+        log("geometry auto: a signed distance over the cavity prior's wall")
+    field = cfg.field.model_copy(update={"geometry": geometry})
+    return cfg.model_copy(update={"field": field})
+
+
 def build_frames(ingest, poses, device: torch.device):
     """Registered frames (endopipe order): images in [0, 1], usable masks, world c2w."""
     ids = [i for i in poses.registered if i < len(ingest.frames)]
@@ -201,6 +214,7 @@ def set_up_training(
     device = pick_device(cfg.train.device)
     prior = load_prior(centerline)
     cfg = weigh_prior(cfg, prior, log)
+    cfg = choose_geometry(cfg, prior, log)
     ids, k, images, masks, c2w = build_frames(ingest, poses, device)
     box = fit_box(c2w, k, images.shape[1:3], prior, cfg, poses.points(), log)
     cfg = regularise_far_view(cfg, box, log)
