@@ -35,7 +35,7 @@ FALLOFF_TERMS = 3
 
 
 #: Entries of the state dict added after model.pt files were first written.
-NEW_KEYS = ("exposure_trained", "falloff", "log_gamma", "field.beta")
+NEW_KEYS = ("exposure_trained", "falloff", "log_gamma", "field.beta", "field.start")
 
 
 class NerfModel(nn.Module):
