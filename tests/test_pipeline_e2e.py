@@ -78,6 +78,11 @@ def test_every_stage_ran_and_wrote_its_contract(first_run: tuple[Path, float]) -
     report = (case / "07_report" / "report.html").read_text()
     assert "<html" in report.lower() and len(report) > 10_000
     assert "No depth (unknown)" in report
+    # geometry auto: a signed distance over a cavity prior only; the report says which.
+    prior = json.loads((case / "03_centerline" / "manifest.json").read_text())["summary"]
+    nerf = json.loads((case / "04_nerf" / "manifest.json").read_text())["summary"]
+    assert nerf["geometry"] == ("sdf" if prior["kind"] == "cavity" else "density"), prior["kind"]
+    assert "Geometry" in report
 
 
 def test_second_run_is_all_cached_and_fast(first_run: tuple[Path, float]) -> None:

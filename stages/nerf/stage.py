@@ -320,6 +320,7 @@ class Nerf(Stage):
             pose_refine=pose_summary,
             grid_warp=trainer.box.warped,
             core_fraction=trainer.core_fraction,
+            geometry=run.cfg.field.geometry,
         )
 
 

@@ -59,3 +59,4 @@ class NerfSummary(Summary):
     pose_refine: PoseRefineRecord | None = None
     grid_warp: bool | None = None  # the grid warped beyond the camera path (field.warp)
     core_fraction: float | None = None  # L_prior's empty core used (fraction of the wall)
+    geometry: str | None = None  # density or sdf, as field.geometry resolved for this case
