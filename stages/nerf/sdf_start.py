@@ -18,6 +18,9 @@ from endopipe.stages.nerf.bounds import PriorBounds
 #: Behind the wall the starting distance is cut here (scene units = radii): deep tissue never
 #: renders, and a distance growing without bound there asks nothing of the residual.
 DEEPEST = -1.0
+#: Past the tube's ends: free space a little way from any surface (scene units), so that the
+#: first steps, whose surface is wide (beta_init), can still draw one where the frames see it.
+OPEN = 0.2
 
 
 def starting_distance(pb: PriorBounds, cameras: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -26,8 +29,15 @@ def starting_distance(pb: PriorBounds, cameras: torch.Tensor, x: torch.Tensor) -
     camera (scene frame; `cameras` (C, 3) their centres)."""
     box, prior = pb.box, pb.prior
     if prior.kind != "none":
-        sd = prior.signed_distance(box.scene_to_world(x).double())
+        w = box.scene_to_world(x).double()
+        c = prior.closest(w, refine=False) if prior.kind == "tube" else None
+        sd = c["dist"] - c["radius"] if c is not None else prior.signed_distance(w)
         d = -sd.to(x) / box.scale
+        if c is not None and pb.cfg.sampling.open_tube_ends:
+            # Past the curve's ends the wall is a straight guess: fade it out over a radius.
+            past = torch.maximum(-c["s"], c["s"] - prior.length).clamp_min(0.0)
+            fade = (past / c["radius"]).clamp(0.0, 1.0).to(x)
+            d = (1.0 - fade) * d + fade * OPEN
     else:
         reach = pb.typical_distance() or 1.0
         d = reach - torch.cdist(x, cameras.to(x)).amin(1)
