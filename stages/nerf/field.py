@@ -46,12 +46,10 @@ class RadianceField(nn.Module):
         super().__init__()
         self.cfg = cfg
         self.dir_dim = sinusoidal_dim(3, cfg.dir_bands) if cfg.view_dependent else 0
-        # Signed-distance geometry: grid units -> scene units (set by make_field), and the
-        # Laplace CDF's width now (a buffer: a loaded model renders with its last width).
-        self.half_extent = 1.0
+        # Signed-distance geometry: the Laplace CDF's width now (a buffer: a loaded model renders
+        # with its last width), and the starting distance on a coarse grid (1, 1, D, H, W) over
+        # [-1, 1]^3, set by the trainer from the prior (sdf_start.py; empty until then).
         self.register_buffer("beta", torch.tensor(cfg.sdf.beta_init), persistent=True)
-        # The starting distance on a coarse grid (1, 1, D, H, W) over [-1, 1]^3, set by the
-        # trainer from the prior; empty: a sphere seen from inside.
         self.register_buffer("start", torch.zeros(0), persistent=True)
 
     @property
@@ -72,13 +70,13 @@ class RadianceField(nn.Module):
 
     def _signed(self, raw: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """The signed distance (scene units): a learned residual over the starting distance
-        (the prior's wall, or a sphere the cameras see from inside). The residual is scaled
-        down so that an optimiser step moves the surface by a small part of a radius."""
-        return self.starting_distance(x) + self.cfg.sdf.residual_scale * raw
+        (the prior's wall, or spheres about the cameras). The residual is scaled down so that
+        an optimiser step moves the surface by a small part of a radius."""
+        return self._start_at(x) + self.cfg.sdf.residual_scale * raw
 
-    def starting_distance(self, x: torch.Tensor) -> torch.Tensor:
-        if self.start.numel() == 0:  # no prior given: a sphere filling the box
-            return (0.9 - x.norm(dim=-1)) * self.half_extent
+    def _start_at(self, x: torch.Tensor) -> torch.Tensor:
+        if self.start.numel() == 0:  # not placed by a trainer yet
+            return torch.zeros_like(x[:, 0])
         g = x.view(1, -1, 1, 1, 3).to(self.start.dtype)
         v = F.grid_sample(self.start, g, mode="bilinear", padding_mode="border", align_corners=True)
         return v.view(-1).to(x.dtype)
@@ -306,12 +304,8 @@ def laplace_density(d: torch.Tensor, beta: torch.Tensor) -> torch.Tensor:
 
 
 def make_field(cfg: FieldConfig, box_extent: tuple[float, float, float]) -> RadianceField:
-    field: RadianceField
     if cfg.encoding == "tensorf":
-        field = TensorfField(cfg, box_extent)
-    elif cfg.encoding == "hashgrid":
-        field = HashgridField(cfg)
-    else:
-        field = PositionalField(cfg)
-    field.half_extent = 0.5 * float(max(box_extent))
-    return field
+        return TensorfField(cfg, box_extent)
+    if cfg.encoding == "hashgrid":
+        return HashgridField(cfg)
+    return PositionalField(cfg)
