@@ -290,3 +290,33 @@ def test_prior_bounds_do_not_end_rays_at_the_extrapolated_tube() -> None:
     cfg.sampling.open_tube_ends = False
     _, closed, _ = PriorBounds(tube, box, cfg).bounds(o, d, 0.5)
     assert closed[0].item() == pytest.approx(75.0, rel=1e-3)
+
+
+def test_a_moved_prior_is_the_same_wall_in_the_new_coordinates() -> None:
+    """x -> s R x + t: the signed distance at the moved point is s times the old one, for every
+    shape (within 2% of the radius: the tube's lookup grid is cut anew), and the lengths it
+    carries (reach, unit) scale with it."""
+    from scipy.spatial.transform import Rotation
+
+    from endopipe.stages.centerline.prior import FreePrior
+
+    def turn(v: list[float]) -> np.ndarray:
+        return Rotation.from_rotvec(v).as_matrix()
+
+    s, r, t = 0.37, turn([0.3, -1.1, 0.5]), np.array([4.0, -2.0, 9.0])
+    centre, offset, d, _ = arc_points(np.random.default_rng(3), 500, 1.5 * 20.0)
+    x = centre + d[:, None] * offset  # about the wall, where the NeRF asks
+    shapes = [
+        arc_tube(open_ends=True, radius=np.linspace(10.0, 20.0, 300)),
+        EllipsoidPrior([1.0, 2.0, 3.0], [40.0, 25.0, 15.0], turn([0, 0, 0.4])),
+        FreePrior([0.0, 1.0, 2.0], 5.0, 60.0, 20.0),
+    ]
+    for prior in shapes:
+        prior.reach, prior.unit, prior.margin, prior.weight = 80.0, 12.0, 0.3, 0.6
+        moved = prior.moved(s, r, t)
+        assert moved.kind == prior.kind
+        before = prior.signed_distance(x).double().numpy()
+        after = moved.signed_distance(s * x @ r.T + t).double().numpy()
+        np.testing.assert_allclose(after, s * before, atol=s * 0.02 * R, err_msg=prior.kind)
+        assert moved.reach == pytest.approx(s * 80.0) and moved.unit == pytest.approx(s * 12.0)
+        assert (moved.margin, moved.weight) == (0.3, 0.6)

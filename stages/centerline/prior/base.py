@@ -79,6 +79,22 @@ class LumenPrior:
     def _arrays(self) -> dict[str, np.ndarray]:
         raise NotImplementedError
 
+    # --- moving ---------------------------------------------------------------------------
+    def moved(self, s: float, r: np.ndarray, t: np.ndarray) -> LumenPrior:
+        """This prior in other coordinates, x -> s R x + t (one case's prior placed in another
+        reconstruction of the same scene): lengths scale by s, shares and fractions stay."""
+        out = self._moved(float(s), np.asarray(r, np.float64), np.asarray(t, np.float64))
+        out.far_radii = self.far_radii
+        out.weight = self.weight
+        out.reach = None if self.reach is None else self.reach * s
+        out.unit = None if self.unit is None else self.unit * s
+        out.margin = self.margin
+        out.core_limit = self.core_limit
+        return out
+
+    def _moved(self, s: float, r: np.ndarray, t: np.ndarray) -> LumenPrior:
+        raise NotImplementedError
+
     # --- persistence ----------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
         """Write `prior.npz`: kind, curve samples, radii, ellipsoid parameters."""

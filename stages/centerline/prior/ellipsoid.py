@@ -137,5 +137,10 @@ class EllipsoidPrior(LumenPrior):
         far = far.clamp(max=cap)
         return near_far(near_fraction, self.radius_at(o), far, dnorm)
 
+    def _moved(self, s: float, r: np.ndarray, t: np.ndarray) -> EllipsoidPrior:
+        return EllipsoidPrior(
+            s * r @ self.centre + t, s * self.axes, r @ self.rotation, far_radii=self.far_radii
+        )
+
     def _arrays(self) -> dict[str, np.ndarray]:
         return {"centre": self.centre, "axes": self.axes, "rotation": self.rotation}

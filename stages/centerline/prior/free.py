@@ -58,6 +58,9 @@ class FreePrior(LumenPrior):
         far = torch.full_like(dnorm, self.reach)
         return near_far(near_fraction, torch.full_like(dnorm, self.scale), far, dnorm)
 
+    def _moved(self, s: float, r: np.ndarray, t: np.ndarray) -> FreePrior:
+        return FreePrior(s * r @ self.centre + t, s * self.scale, s * self.reach, s * self.depth)
+
     def _arrays(self) -> dict[str, np.ndarray]:
         return {
             "centre": self.centre,

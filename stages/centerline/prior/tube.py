@@ -368,6 +368,14 @@ class TubePrior(LumenPrior):
             far.index_copy_(0, idx, last.clamp(max=cap))
         return near_far(near_fraction, r_origin, far, dnorm)
 
+    def _moved(self, s: float, r: np.ndarray, t: np.ndarray) -> TubePrior:
+        return TubePrior(
+            s * self.points @ r.T + t,
+            s * self.radius,
+            open_ends=self.open_ends,
+            far_radii=self.far_radii,
+        )
+
     def _arrays(self) -> dict[str, np.ndarray]:
         return {
             "points": self.points,
