@@ -1,7 +1,8 @@
 """Put one case's lumen prior into another case of the same input (a recording's window), moved
 by the similarity fitted on the cameras both registered: to measure what the window's own
-prior costs it. The target's `03_centerline/prior.npz` is replaced; run the target again from
-the NeRF (`endopipe run TARGET --from nerf`) and compare its depth score.
+prior costs it. The target's `03_centerline/prior.npz` is replaced and listed in that stage's
+manifest (the cache keeps the stage, with the placed prior); run the target again from the NeRF
+(`endopipe run TARGET --from nerf`) and compare its depth score.
 
 Run on a copy of the window, never on the original:
 `cp -r W/windowed/windows/w000 W/w000_placed && .venv/bin/python scripts/place_prior.py
@@ -17,6 +18,7 @@ import numpy as np
 
 from endopipe.cli import build_pipeline
 from endopipe.commands.recording.join import fit_similarity, junction_error_pct
+from endopipe.pipeline.cache import MANIFEST, Manifest, list_files
 from endopipe.stages.centerline.prior import LumenPrior
 
 
@@ -39,9 +41,14 @@ def main() -> None:
         raise SystemExit(f"the cases share {len(shared)} registered frames; at least 3 needed")
     a, b = [to[i] for i in shared], [frm[i] for i in shared]
     sim = fit_similarity(a, b)  # source -> target
-    prior_file = "03_centerline/prior.npz"
-    prior = LumenPrior.load(args.source / prior_file)
-    prior.moved(sim.s, np.array(sim.R), np.array(sim.t)).save(args.target / prior_file)
+    folder = args.target / "03_centerline"
+    manifest = Manifest.load(folder)
+    if manifest is None:
+        raise SystemExit(f"{folder} holds no finished centerline stage")
+    prior = LumenPrior.load(args.source / "03_centerline" / "prior.npz")
+    prior.moved(sim.s, np.array(sim.R), np.array(sim.t)).save(folder / "prior.npz")
+    manifest.files = list_files(folder)
+    (folder / MANIFEST).write_text(manifest.model_dump_json(indent=2))
     print(
         f"{args.source}'s {prior.kind} placed in {args.target} (scale {sim.s:.3f}; the "
         f"{len(shared)} shared cameras {junction_error_pct(a, b, sim):.2f}% of the path apart)"
