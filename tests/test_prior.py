@@ -309,7 +309,7 @@ def test_a_moved_prior_is_the_same_wall_in_the_new_coordinates() -> None:
     shapes = [
         arc_tube(open_ends=True, radius=np.linspace(10.0, 20.0, 300)),
         EllipsoidPrior([1.0, 2.0, 3.0], [40.0, 25.0, 15.0], turn([0, 0, 0.4])),
-        FreePrior([0.0, 1.0, 2.0], 5.0, 60.0, 20.0),
+        FreePrior([0.0, 1.0, 2.0], 5.0, 80.0, 20.0),
     ]
     for prior in shapes:
         prior.reach, prior.unit, prior.margin, prior.weight = 80.0, 12.0, 0.3, 0.6
@@ -320,3 +320,4 @@ def test_a_moved_prior_is_the_same_wall_in_the_new_coordinates() -> None:
         np.testing.assert_allclose(after, s * before, atol=s * 0.02 * R, err_msg=prior.kind)
         assert moved.reach == pytest.approx(s * 80.0) and moved.unit == pytest.approx(s * 12.0)
         assert (moved.margin, moved.weight) == (0.3, 0.6)
+        assert moved.far_radii == pytest.approx(prior.far_radii)  # a count of radii

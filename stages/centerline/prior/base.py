@@ -84,7 +84,6 @@ class LumenPrior:
         """This prior in other coordinates, x -> s R x + t (one case's prior placed in another
         reconstruction of the same scene): lengths scale by s, shares and fractions stay."""
         out = self._moved(float(s), np.asarray(r, np.float64), np.asarray(t, np.float64))
-        out.far_radii = self.far_radii
         out.weight = self.weight
         out.reach = None if self.reach is None else self.reach * s
         out.unit = None if self.unit is None else self.unit * s
