@@ -20,13 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from endopipe.cli import build_pipeline
+from endopipe.commands.recording.command import cameras_by_source
 from endopipe.stages.metrics.depth import pose_metrics
-
-
-def single_trajectory(pipe, case: Path) -> dict[int, np.ndarray]:
-    ingest = pipe.view(case, "ingest")
-    poses = pipe.view(case, "poses")
-    return {ingest.frame(i).source_index: c2w for i, c2w in poses.c2w.items()}
 
 
 def joined_trajectory(case: Path) -> dict[int, np.ndarray]:
@@ -40,7 +35,7 @@ def main() -> None:
     parser.add_argument("single", type=Path)
     args = parser.parse_args()
     pipe = build_pipeline()
-    joined, single = joined_trajectory(args.windowed), single_trajectory(pipe, args.single)
+    joined, single = joined_trajectory(args.windowed), cameras_by_source(pipe, args.single)
     m = pose_metrics(joined, single)
     summary = json.loads((args.windowed / "recording" / "summary.json").read_text())
     print(

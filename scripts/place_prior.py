@@ -17,16 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from endopipe.cli import build_pipeline
+from endopipe.commands.recording.command import cameras_by_source
 from endopipe.commands.recording.join import fit_similarity, junction_error_pct
 from endopipe.pipeline.cache import MANIFEST, Manifest, list_files
 from endopipe.stages.centerline.prior import LumenPrior
-
-
-def trajectory(pipe, case: Path) -> dict[int, np.ndarray]:
-    """Registered cameras by source frame (the key both cases share)."""
-    ingest = pipe.view(case, "ingest")
-    poses = pipe.view(case, "poses")
-    return {ingest.frame(i).source_index: c2w for i, c2w in poses.c2w.items()}
 
 
 def main() -> None:
@@ -35,7 +29,7 @@ def main() -> None:
     parser.add_argument("source", type=Path, help="the case whose prior it takes")
     args = parser.parse_args()
     pipe = build_pipeline()
-    to, frm = trajectory(pipe, args.target), trajectory(pipe, args.source)
+    to, frm = cameras_by_source(pipe, args.target), cameras_by_source(pipe, args.source)
     shared = sorted(set(to) & set(frm))
     if len(shared) < 3:
         raise SystemExit(f"the cases share {len(shared)} registered frames; at least 3 needed")

@@ -266,14 +266,20 @@ def _stored_key(folder: Path) -> str | None:
         return None
 
 
+def cameras_by_source(pipe: Pipeline, case_dir: Path) -> dict[int, np.ndarray]:
+    """A case's registered cameras (c2w) keyed by source frame: the key a recording's windows,
+    and a windowed and a single run of one input, share."""
+    ingest = pipe.view(case_dir, "ingest")
+    poses = pipe.view(case_dir, "poses")
+    return {ingest.frame(i).source_index: c2w for i, c2w in poses.c2w.items()}
+
+
 def _window_poses(pipe: Pipeline, window_dir: Path) -> dict[int, np.ndarray] | None:
     """A window's registered cameras by source_index (None: no poses to join)."""
     try:
-        ingest = pipe.view(window_dir, "ingest")
-        poses = pipe.view(window_dir, "poses")
+        return cameras_by_source(pipe, window_dir)
     except (OSError, ValueError):
         return None
-    return {ingest.frame(i).source_index: c2w for i, c2w in poses.c2w.items()}
 
 
 def _truth_poses(ingest) -> list[np.ndarray] | None:
