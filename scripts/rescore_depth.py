@@ -9,7 +9,10 @@ Then, for a relative ground truth (C3VD's panel), the signed error of our per-fr
 affinely-aligned depth binned by the distance to the principal point (1 = half the frame
 height). `--lens-check` (a diagnosis that uses the C3VD calibration, not a pipeline result):
 our per-pixel range re-projected to z-depth through C3VD's own omnidirectional lens, for a few
-guesses of how much of the 1080-px frame height the preview kept.
+guesses of how much of the 1080-px frame height the preview kept. `--far`: the far lumen alone,
+each frame's pixels in the panel's deepest 30% (Spearman of ours inside them against the panel,
+and the whole frame's affinely aligned depth's AbsRel there), beside the image brightness as a
+cue (depth = 1/sqrt(grey)) on the same pixels.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from endopipe.stages.poses.view import PosesView
 # C3VD's colonoscope (PROVENANCE.md of the preview): Scaramuzza polynomial at 1350x1080.
 C3VD_POLY = (767.73, 0.0, -5.925e-4, -2.694e-7, -2.164e-10)
 C3VD_HEIGHT = 1080.0
+FAR_SHARE = 0.3  # the far lumen: each frame's deepest 30% of the panel's pixels
 RADIAL_BINS = (0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.5)
 BANDS = list(zip(RADIAL_BINS[:-1], RADIAL_BINS[1:], strict=True))
 
@@ -43,6 +47,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("cases", type=Path, nargs="+")
     parser.add_argument("--lens-check", action="store_true")
+    parser.add_argument("--far", action="store_true", help="score the far lumen alone")
     args = parser.parse_args()
     for case in args.cases:
         ingest = IngestView(case / "01_ingest")
@@ -76,6 +81,8 @@ def main() -> None:
                 inside = valid & (radius >= lo * h / 2) & (radius < hi * h / 2)
                 if inside.sum() > 20:
                     errors[b].append(float(signed[inside].mean()))
+        if args.far:
+            print_far_lumen(ingest, truth, ours, fov)
         print("  signed error of the aligned depth by radius (1 = half the height):")
         for (lo, hi), e in zip(BANDS, errors, strict=True):
             print(f"    {lo:.1f}-{hi:.1f}: {np.mean(e):+.3f}" if e else f"    {lo:.1f}-{hi:.1f}: -")
@@ -92,6 +99,31 @@ def main() -> None:
                 f"  range through C3VD's lens, preview = {kept:.2f} of the frame height: "
                 f"spearman {a['spearman']:.3f} abs_rel {a['abs_rel']:.3f}"
             )
+
+
+def print_far_lumen(
+    ingest: IngestView, truth: dict[int, np.ndarray], ours: dict[int, np.ndarray], fov: np.ndarray
+) -> None:
+    """Per-frame scores inside the panel's deepest FAR_SHARE of pixels, averaged over frames."""
+    from scipy.stats import spearmanr
+
+    rho, cue, rel = [], [], []
+    for i in sorted(truth):
+        g, d = truth[i], ours[i]
+        valid = fov & (d > 0) & (g > 0)
+        if valid.sum() < 100:
+            continue
+        far = valid & (g >= np.quantile(g[valid], 1.0 - FAR_SHARE))
+        scale, shift = affine_fit(d[valid].astype(float), g[valid].astype(float))
+        grey = ingest.image(i).astype(float).mean(-1)
+        rho.append(spearmanr(d[far], g[far]).statistic)
+        cue.append(spearmanr(1.0 / np.sqrt(grey[far] + 1.0), g[far]).statistic)
+        rel.append(float(np.mean(np.abs(scale * d[far] + shift - g[far]) / g[far])))
+    print(
+        f"  far lumen (the panel's deepest {FAR_SHARE:.0%}, {len(rho)} frames): spearman "
+        f"{np.mean(rho):.3f} (frames {np.percentile(rho, 10):.2f}-{np.percentile(rho, 90):.2f}), "
+        f"aligned abs_rel {np.mean(rel):.3f}; brightness cue spearman {np.mean(cue):.3f}"
+    )
 
 
 if __name__ == "__main__":

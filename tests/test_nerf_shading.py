@@ -181,3 +181,24 @@ def test_every_render_path_sees_the_angle_to_the_optical_axis():
     assert x.max() > 0.3
     ratio = (dimmed / flat) ** cfg.shading.gamma
     assert np.allclose(ratio, expected[..., None], rtol=1e-3)
+
+
+def test_the_normal_term_dims_a_tilted_wall_by_its_cosine_and_off_ignores_the_tilt():
+    """n.l is the shading's cue to shape; off, only the distance lights the wall."""
+    for normal_term in (True, False):
+        model, d, surface, albedo, frame, _ = flat_wall(photometric_config(normal_term=normal_term))
+        with torch.no_grad():
+            model.ambient_raw.fill_(-30.0)  # no ambient: the light is gain cos / r^2 alone
+            facing = -d / d.norm(dim=-1, keepdim=True)
+            lit = shade(model, d, {**surface, "normal": facing}, albedo, frame)
+            axis = torch.linalg.cross(facing, torch.tensor([1.0, 0.0, 0.0]).expand_as(d))
+            tilt = math.radians(60)
+            axis = axis / axis.norm(dim=-1, keepdim=True)
+            tilted = math.cos(tilt) * facing + math.sin(tilt) * axis
+            dimmed = shade(model, d, {**surface, "normal": tilted}, albedo, frame)
+        gamma = model.cfg.shading.gamma
+        ratio = ((dimmed / lit) ** gamma).flatten()
+        bright = (lit < 0.99).flatten()  # unclipped channels
+        expected = math.cos(tilt) if normal_term else 1.0
+        assert bright.float().mean() > 0.5
+        assert torch.allclose(ratio[bright], torch.full_like(ratio[bright], expected), rtol=1e-3)

@@ -201,6 +201,11 @@ class ShadingConfig(_Section):
         description="Learning rate of the falloff coefficients, the learned gamma and the "
         "per-frame exposures.",
     )
+    normal_term: bool = Field(
+        True,
+        description="Light the surface by the cosine between its normal and the light (n.l): "
+        "shading as a cue to shape. Off: the light falls off with distance only.",
+    )
     normal_eps: float = Field(
         1.0, gt=0, description="Finite-difference step of the density gradient, in grid cells."
     )
