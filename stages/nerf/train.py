@@ -40,6 +40,7 @@ LOG_FIELDS = [
     "normal_var",
     "smooth",
     "geo",
+    "albedo",
     "distortion",
     "sparse",
     "eikonal",
