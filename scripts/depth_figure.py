@@ -10,7 +10,7 @@ Each depth is coloured as in 05_depth/preview.mp4, over its own 2-98th percentil
 with no depth are grey, outside the field of view black. The ground truth, when the case has one,
 is read through the ingest view's door like every stage does.
 
-`--relief` adds both surfaces right of each frame's depths, shaded as if lit from the camera:
+`--relief` adds the surfaces (each run's, then the ground truth's) right of each frame's depths, shaded as if lit from the camera:
 a colour map hides folds that change the depth by a few percent, shading shows them. A relative
 ground truth (C3VD's panel) is first mapped onto our depth by least squares, scale and shift
 (the score's fit, the other way round), since its shading needs depth in one unit with ours.
@@ -90,12 +90,12 @@ def main() -> None:
         rgb = cv2.cvtColor(ingest.image(i), cv2.COLOR_RGB2BGR)
         rgb[~inside] = 0
         ours = depth.depth(i)
-        panels = [rgb, colour(ours, inside)]
-        panels += [colour(DepthView(other / "05_depth").depth(i), inside) for other in args.beside]
+        others = [DepthView(other / "05_depth").depth(i) for other in args.beside]
+        panels = [rgb, colour(ours, inside)] + [colour(o, inside) for o in others]
         if i in truth:
             panels.append(colour(truth[i], inside))
         if args.relief:
-            panels.append(relief(ours, inside, directions))
+            panels += [relief(d, inside, directions) for d in [ours, *others]]
             if i in truth:
                 panel = in_our_unit(truth[i], ours, inside) if relative else truth[i]
                 panels.append(relief(panel, inside, directions))
