@@ -202,22 +202,3 @@ def test_the_normal_term_dims_a_tilted_wall_by_its_cosine_and_off_ignores_the_ti
         expected = math.cos(tilt) if normal_term else 1.0
         assert bright.float().mean() > 0.5
         assert torch.allclose(ratio[bright], torch.full_like(ratio[bright], expected), rtol=1e-3)
-
-
-def test_the_albedo_term_leaves_a_change_of_brightness_to_the_shading_and_of_colour_to_the_albedo():
-    from endopipe.stages.nerf.losses import albedo_smoothness
-
-    ramp = torch.linspace(0.3, 0.9, 4)
-    pink = torch.tensor([0.8, 0.4, 0.35])
-    shaded = (ramp[None, :, None] * pink).expand(4, 4, 3)[None]  # brightness only
-    valid = torch.ones(1, 4, 4, dtype=torch.bool)
-    flat = pink.expand(1, 4, 4, 3)
-    # The same pixels explained by the albedo cost; by the shading (a flat albedo), nothing.
-    assert albedo_smoothness(shaded, shaded, valid, 50.0) > 0.1
-    assert albedo_smoothness(flat, shaded, valid, 50.0) == 0.0
-    # A change of colour is the albedo's: following it costs almost nothing.
-    edge = torch.where(torch.arange(4)[None, :, None] < 2, pink, torch.tensor([0.3, 0.6, 0.5]))
-    edge = edge.expand(4, 4, 3)[None]
-    assert albedo_smoothness(edge, edge, valid, 50.0) < 1e-3
-    # Pixels the masks left out are not compared.
-    assert albedo_smoothness(shaded, shaded, torch.zeros_like(valid), 50.0) == 0.0

@@ -331,16 +331,6 @@ class LossConfig(_Section):
         1, description="Smoothness on depth gradients (1) or second differences (2)."
     )
     edge_scale: float = Field(10.0, ge=0, description="Edge-aware weight exp(-scale |grad I|).")
-    albedo_smooth_weight: float = Field(
-        0.0,
-        ge=0,
-        description="Retinex: log-albedo differences within patches, weighted by "
-        "exp(-albedo_edge_scale |grad chromaticity|): a change of brightness with no change of "
-        "colour is left to the shading (n.l, distance), so shading shapes the surface (0: off).",
-    )
-    albedo_edge_scale: float = Field(
-        50.0, ge=0, description="Edge weight of the albedo term on chromaticity gradients."
-    )
     patch_size: int = Field(4, ge=2, description="Rays are drawn as patches of this size.")
     patch_fraction: float = Field(
         0.5, ge=0, le=1, description="Share of each batch drawn as patches (rest: single rays)."

@@ -82,25 +82,6 @@ def edge_aware_smoothness(depth: torch.Tensor, image: torch.Tensor, order: int, 
     return (gx * wx).mean() + (gy * wy).mean()
 
 
-def albedo_smoothness(
-    albedo: torch.Tensor, image: torch.Tensor, valid: torch.Tensor, edge_scale: float
-) -> torch.Tensor:
-    """(P, p, p, 3) albedo and image patches, (P, p, p) usable pixels: squared log-albedo
-    differences between neighbours, weighted by exp(-edge_scale |grad chromaticity|). Shading
-    (light, distance, tilt) scales all channels alike; a change of colour is the albedo's."""
-    la = albedo.clamp_min(1e-4).log()
-    chroma = image / image.sum(-1, keepdim=True).clamp_min(1e-3)
-    terms = []
-    for axis in (1, 2):
-        n = la.shape[axis] - 1
-        da = la.narrow(axis, 1, n) - la.narrow(axis, 0, n)
-        dc = (chroma.narrow(axis, 1, n) - chroma.narrow(axis, 0, n)).abs().sum(-1)
-        both = (valid.narrow(axis, 1, n) & valid.narrow(axis, 0, n)).to(la.dtype)
-        w = torch.exp(-edge_scale * dc) * both
-        terms.append((w * da.square().sum(-1)).sum() / both.sum().clamp_min(1.0))
-    return terms[0] + terms[1]
-
-
 def geometric_consistency(
     z_warped: torch.Tensor, z_rendered: torch.Tensor, valid: torch.Tensor
 ) -> torch.Tensor:

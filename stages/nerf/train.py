@@ -295,17 +295,6 @@ class Trainer:
             img = b.rgb[:patches].view(b.n_patches, p, p, 3)
             terms["smooth"] = losses.edge_aware_smoothness(z, img, lc.smooth_order, lc.edge_scale)
             loss = loss + lc.lambda_smooth * terms["smooth"]
-        if lc.albedo_smooth_weight > 0 and b.n_patches > 0 and "albedo" in out:
-            p = b.patch
-            terms["albedo"] = losses.albedo_smoothness(
-                (out["albedo"] / out["opacity"].clamp_min(1e-3)[:, None])[:patches].view(
-                    b.n_patches, p, p, 3
-                ),
-                b.rgb[:patches].view(b.n_patches, p, p, 3),
-                b.valid[:patches].view(b.n_patches, p, p),
-                lc.albedo_edge_scale,
-            )
-            loss = loss + lc.albedo_smooth_weight * terms["albedo"]
         if lc.geo and lc.lambda_geo > 0 and b.n_patches > 0 and lc.geo_patches > 0:
             terms["geo"] = self._geo_term(b, o, d, out["depth"])
             loss = loss + lc.lambda_geo * terms["geo"]
