@@ -40,7 +40,6 @@ LOG_FIELDS = [
     "normal_var",
     "smooth",
     "geo",
-    "albedo",
     "distortion",
     "sparse",
     "eikonal",
