@@ -12,9 +12,9 @@ is read through the ingest view's door like every stage does.
 
 `--relief` adds the surfaces (each run's, then the ground truth's) right of each frame's depths,
 shaded as if lit from the camera: a colour map hides folds that change the depth by a few
-percent, shading shows them. A relative
-ground truth (C3VD's panel) is first mapped onto our depth by least squares, scale and shift
-(the score's fit, the other way round), since its shading needs depth in one unit with ours.
+percent, shading shows them. A relative ground truth (C3VD's panel) is first mapped onto our
+depth by least squares, scale and shift (the score's fit, the other way round), since its
+shading needs depth in one unit with ours.
 """
 
 from __future__ import annotations
