@@ -12,7 +12,7 @@ our per-pixel range re-projected to z-depth through C3VD's own omnidirectional l
 guesses of how much of the 1080-px frame height the preview kept. `--far`: the far lumen alone,
 each frame's pixels in the panel's deepest 30% (Spearman of ours inside them against the panel,
 and the whole frame's affinely aligned depth's AbsRel there), beside the image brightness as a
-cue (depth = 1/sqrt(grey)) on the same pixels.
+cue (the depth stage's brightness guess) on the same pixels.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from endopipe.stages.camera.rays import image_directions
 from endopipe.stages.depth.evaluate import evaluate, ground_truth_depths
 from endopipe.stages.depth.view import DepthView
 from endopipe.stages.ingest.view import IngestView
+from endopipe.stages.metrics.baselines import brightness_guess
 from endopipe.stages.metrics.depth import affine_fit, affine_sequence_metrics
 from endopipe.stages.poses.view import PosesView
 
@@ -115,9 +116,8 @@ def print_far_lumen(
             continue
         far = valid & (g >= np.quantile(g[valid], 1.0 - FAR_SHARE))
         scale, shift = affine_fit(d[valid].astype(float), g[valid].astype(float))
-        grey = ingest.image(i).astype(float).mean(-1)
         rho.append(spearmanr(d[far], g[far]).statistic)
-        cue.append(spearmanr(1.0 / np.sqrt(grey[far] + 1.0), g[far]).statistic)
+        cue.append(spearmanr(brightness_guess(ingest.image(i))[far], g[far]).statistic)
         rel.append(float(np.mean(np.abs(scale * d[far] + shift - g[far]) / g[far])))
     print(
         f"  far lumen (the panel's deepest {FAR_SHARE:.0%}, {len(rho)} frames): spearman "

@@ -216,6 +216,11 @@ class ShadingConfig(_Section):
         description="Fraction of training over which the n.l term fades in (starts as 1).",
     )
 
+    @property
+    def tilt(self) -> bool:
+        """Whether the surface's normal lights it (n.l): the shading is on with its tilt."""
+        return self.enabled and self.normal_term
+
 
 class SamplingConfig(_Section):
     """Samples along each ray; bounds come from the lumen prior's ray_bounds."""

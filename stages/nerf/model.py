@@ -203,8 +203,7 @@ class NerfModel(nn.Module):
             out["coarse_rgb_albedo"] = coarse["albedo"] if colour else None
             out["coarse_depth"] = coarse["depth"]
             out["coarse_opacity"] = coarse["opacity"]
-        sc = self.cfg.shading
-        want_normals = sc.enabled and sc.normal_term and colour if normals is None else normals
+        want_normals = self.cfg.shading.tilt and colour if normals is None else normals
         if want_normals:
             surf = o + out["depth"].detach()[:, None] * d
             out["normal"] = self.normals(surf)
@@ -269,7 +268,7 @@ class NerfModel(nn.Module):
             lin = albedo
         else:
             r = (out["depth"] * dnorm).clamp_min(1e-3)
-            if "normal" in out and cfg.normal_term:
+            if "normal" in out and cfg.tilt:
                 cos = (out["normal"] * d).sum(-1).neg().div(dnorm).clamp_min(0.0)
                 cos = mix * cos + (1.0 - mix)
             else:

@@ -238,9 +238,7 @@ class Trainer:
         warm = cfg.shading.normal_warmup
         mix = 1.0 if warm <= 0 else min(1.0, progress / warm)
         patches = b.n_patches * b.patch * b.patch
-        need_normals = (cfg.shading.enabled and cfg.shading.normal_term) or (
-            lc.prior and lc.normal_weight > 0 and b.n_patches > 0
-        )
+        need_normals = cfg.shading.tilt or (lc.prior and lc.normal_weight > 0 and b.n_patches > 0)
         out = self.model.render_rays(
             o,
             d,
