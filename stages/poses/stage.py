@@ -160,8 +160,8 @@ class Poses(Stage):
                 f"field of view and reaches {summary.lens_reach:.1%} of it; the rest gets no "
                 "ray, so no depth"
                 + (
-                    " (a lens model with more terms reaches further: --set "
-                    "poses.camera_model=RADIAL)"
+                    " (--set poses.camera_model=RADIAL reaches further, but no feature was "
+                    "tracked there to fit it by: on C3VD the depth got worse everywhere)"
                     if summary.intrinsics == "estimated"
                     else ""
                 )
