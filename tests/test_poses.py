@@ -150,7 +150,8 @@ def test_sfm_observations_give_the_true_depth_of_their_pixels(colon: Path, colon
     assert obs is not None and len(obs.frame) > 1000
     positions = {i: p for p, i in enumerate(poses.registered)}
     size = (ingest.height, ingest.width)
-    sd = sparse_depth_targets(obs, positions, poses.c2w, 2.0, size, 3, 2.0, torch.device("cpu"))
+    cpu = torch.device("cpu")
+    sd = sparse_depth_targets(obs, positions, poses.c2w, 2.0, size, 3, 2.0, 0.0, cpu)
     assert sd is not None and 0.5 * len(obs.frame) < len(sd) <= len(obs.frame)
     gt_depth = {
         p: np.load(colon / "gt" / "depth" / f"{ingest.frames[i].source_index:06d}.npy")
@@ -164,8 +165,35 @@ def test_sfm_observations_give_the_true_depth_of_their_pixels(colon: Path, colon
     assert abs(np.median(r) - 1.0) < 0.02, np.median(r)
     assert np.median(np.abs(r - 1.0)) < 0.06, np.median(np.abs(r - 1.0))
     # Tighter filters keep fewer rays; a track of one image is never a depth.
-    strict = sparse_depth_targets(obs, positions, poses.c2w, 2.0, size, 6, 0.5, torch.device("cpu"))
+    strict = sparse_depth_targets(obs, positions, poses.c2w, 2.0, size, 6, 0.5, 0.0, cpu)
     assert strict is None or len(strict) < len(sd)
+    wide = sparse_depth_targets(obs, positions, poses.c2w, 2.0, size, 3, 2.0, 5.0, cpu)
+    assert wide is not None and len(wide) < len(sd)
+
+
+def test_points_seen_under_a_narrow_angle_have_the_worse_depth(
+    colon: Path, colon_run: Path
+) -> None:
+    """The triangulation angle the sparse-depth loss filters on tells which SfM depths to trust:
+    on the synthetic colon, points whose cameras saw them under less than 3 degrees are further
+    from the true depth of their pixel than points seen under more than 6."""
+    poses, ingest = PosesView(colon_run / "02_poses"), IngestView(colon_run / "01_ingest")
+    obs = poses.observations({Path(f.file).name: f.index for f in ingest.frames})
+    assert obs is not None and obs.angle.shape == obs.frame.shape
+    assert (obs.angle >= 0).all() and (obs.angle <= 180).all()
+    err = np.full(len(obs.frame), np.nan)
+    for i in np.unique(obs.frame):
+        sel = obs.frame == i
+        w2c = np.linalg.inv(poses.c2w[int(i)])
+        z = obs.xyz[sel] @ w2c[2, :3] + w2c[2, 3]
+        gt = np.load(colon / "gt" / "depth" / f"{ingest.frames[int(i)].source_index:06d}.npy")
+        u, v = np.round(obs.uv[sel]).astype(int).T
+        inside = (u >= 0) & (u < gt.shape[1]) & (v >= 0) & (v < gt.shape[0])
+        g = np.where(inside, gt[v.clip(0, gt.shape[0] - 1), u.clip(0, gt.shape[1] - 1)], 0.0)
+        err[np.nonzero(sel)[0]] = np.where(g > 0, np.abs(z / np.maximum(g, 1e-9) - 1.0), np.nan)
+    narrow = np.nanmedian(err[obs.angle < 3.0])
+    wide = np.nanmedian(err[obs.angle > 6.0])
+    assert narrow > 1.5 * wide, (narrow, wide)
 
 
 def test_outputs_follow_the_file_contracts(colon: Path, colon_run: Path) -> None:

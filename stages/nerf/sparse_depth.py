@@ -42,18 +42,20 @@ def sparse_depth_targets(
     size: tuple[int, int],
     min_track: int,
     max_error: float,
+    min_angle: float,
     device: torch.device,
     usable: np.ndarray | None = None,
 ) -> SparseDepth | None:
     """The observations of the frames in `positions` (frame index -> FrameSet position, the
     training frames only), with track length >= `min_track`, reprojection error <= `max_error`
-    px, in front of the camera and inside the image (and on a `usable` pixel, (H, W) bool, when
-    given: one the lens model reaches); z-depth in scene units (world / scale)."""
+    px, seen under >= `min_angle` degrees (`SparseObservations.angle`), in front of the camera
+    and inside the image (and on a `usable` pixel, (H, W) bool, when given: one the lens model
+    reaches); z-depth in scene units (world / scale)."""
     if obs is None or not positions:
         return None
     h, w = size
     keep = np.isin(obs.frame, list(positions)) & (obs.track >= min_track)
-    keep &= obs.error <= max_error
+    keep &= (obs.error <= max_error) & (obs.angle >= min_angle)
     keep &= (obs.uv[:, 0] >= 0) & (obs.uv[:, 0] <= w - 1)
     keep &= (obs.uv[:, 1] >= 0) & (obs.uv[:, 1] <= h - 1)
     if usable is not None:

@@ -141,6 +141,7 @@ def load_sparse_depth(
         (ingest.height, ingest.width),
         lc.sparse_min_track,
         lc.sparse_max_error,
+        lc.sparse_min_angle,
         device,
         usable=lens_valid_mask(k.scaled(ingest.width, ingest.height)),
     )

@@ -111,6 +111,7 @@ class SparseObservations:
     xyz: np.ndarray  # (N, 3) world, the cameras.json frame
     track: np.ndarray  # (N,) images that see the point
     error: np.ndarray  # (N,) px
+    angle: np.ndarray  # (N,) widest angle between two of the point's viewing rays (degrees)
 
 
 class PosesView:
@@ -178,6 +179,7 @@ class PosesView:
         import pycolmap  # cv2 is already imported through the `endopipe.stages` package
 
         rec = pycolmap.Reconstruction(str(folder))
+        angles = triangulation_angles(rec)
         rows: list[tuple] = []
         for img in rec.images.values():
             idx = index_of.get(Path(img.name).name)
@@ -187,7 +189,17 @@ class PosesView:
                 if p2.has_point3D():
                     pt = rec.points3D[p2.point3D_id]
                     u, v = p2.xy
-                    rows.append((idx, u - 0.5, v - 0.5, *pt.xyz, pt.track.length(), pt.error))
+                    rows.append(
+                        (
+                            idx,
+                            u - 0.5,
+                            v - 0.5,
+                            *pt.xyz,
+                            pt.track.length(),
+                            pt.error,
+                            angles[p2.point3D_id],
+                        )
+                    )
         if not rows:
             return None
         a = np.array(rows, dtype=np.float64)
@@ -197,4 +209,21 @@ class PosesView:
             xyz=a[:, 3:6],
             track=a[:, 6],
             error=a[:, 7],
+            angle=a[:, 8],
         )
+
+
+def triangulation_angles(rec) -> dict[int, float]:
+    """Each sparse point's widest angle between the rays of two cameras that see it (degrees):
+    how well its depth is determined. Points seen down the direction of travel are seen under
+    a few degrees, and their depth comes out short (60-frame colon, the far end in the last
+    frame: 0.88 of the truth under 2 degrees, 0.92 at 2-4, 0.96 at 4-8)."""
+    centres = {img.image_id: np.asarray(img.projection_center()) for img in rec.images.values()}
+    out: dict[int, float] = {}
+    for pid, pt in rec.points3D.items():
+        rays = np.array([centres[e.image_id] for e in pt.track.elements if e.image_id in centres])
+        rays = rays - np.asarray(pt.xyz)
+        rays /= np.linalg.norm(rays, axis=1, keepdims=True).clip(1e-12)
+        widest = float(np.clip(rays @ rays.T, -1.0, 1.0).min()) if len(rays) > 1 else 1.0
+        out[pid] = float(np.degrees(np.arccos(widest)))
+    return out
