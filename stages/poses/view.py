@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from pydantic import BaseModel, Field, model_validator
@@ -14,6 +15,9 @@ from endopipe.stages.camera import Camera
 from endopipe.stages.io.colmap_model import camera_from_colmap, camera_to_colmap
 from endopipe.stages.poses.summary import PosesSummary
 from endopipe.stages.poses.verdict import PoseVerdict
+
+if TYPE_CHECKING:
+    import pycolmap
 
 
 class FramePose(BaseModel):
@@ -213,7 +217,7 @@ class PosesView:
         )
 
 
-def triangulation_angles(rec) -> dict[int, float]:
+def triangulation_angles(rec: pycolmap.Reconstruction) -> dict[int, float]:
     """Each sparse point's widest angle between the rays of two cameras that see it (degrees):
     how well its depth is determined. Points seen down the direction of travel are seen under
     a few degrees, and their depth comes out short (60-frame colon, the far end in the last
