@@ -225,9 +225,11 @@ def triangulation_angles(rec: pycolmap.Reconstruction) -> dict[int, float]:
     centres = {img.image_id: np.asarray(img.projection_center()) for img in rec.images.values()}
     out: dict[int, float] = {}
     for pid, pt in rec.points3D.items():
-        rays = np.array([centres[e.image_id] for e in pt.track.elements if e.image_id in centres])
-        rays = rays - np.asarray(pt.xyz)
+        seen_from = [centres[e.image_id] for e in pt.track.elements if e.image_id in centres]
+        if len(seen_from) < 2:  # one ray: no angle, the depth is not determined
+            out[pid] = 0.0
+            continue
+        rays = np.array(seen_from) - np.asarray(pt.xyz)
         rays /= np.linalg.norm(rays, axis=1, keepdims=True).clip(1e-12)
-        widest = float(np.clip(rays @ rays.T, -1.0, 1.0).min()) if len(rays) > 1 else 1.0
-        out[pid] = float(np.degrees(np.arccos(widest)))
+        out[pid] = float(np.degrees(np.arccos(np.clip(rays @ rays.T, -1.0, 1.0).min())))
     return out
