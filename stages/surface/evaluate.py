@@ -100,9 +100,9 @@ def in_frustum(
     width, height = camera.width, camera.height
     m = margin_px + 0.5
     inside = (u >= -m) & (u <= width - 1 + m) & (v >= -m) & (v <= height - 1 + m)
-    if mask is not None:
-        ui = np.clip(np.round(u).astype(np.int64), 0, width - 1)
-        vi = np.clip(np.round(v).astype(np.int64), 0, height - 1)
+    if mask is not None:  # a lens gives no pixel (NaN) past where it bends back: outside
+        ui = np.clip(np.round(np.where(inside, u, 0)).astype(np.int64), 0, width - 1)
+        vi = np.clip(np.round(np.where(inside, v, 0)).astype(np.int64), 0, height - 1)
         inside &= np.asarray(mask)[vi, ui] > 0
     ok[idx] = inside
     return ok
