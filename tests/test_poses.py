@@ -169,6 +169,10 @@ def test_sfm_observations_give_the_true_depth_of_their_pixels(colon: Path, colon
     assert strict is None or len(strict) < len(sd)
     wide = sparse_depth_targets(obs, positions, poses.c2w, 2.0, size, 3, 2.0, 5.0, cpu)
     assert wide is not None and len(wide) < len(sd)
+    # An angle the camera never reached keeps the wider half of the points, not none.
+    steep = sparse_depth_targets(obs, positions, poses.c2w, 2.0, size, 3, 2.0, 90.0, cpu)
+    assert steep is not None and 0.45 * len(sd) < len(steep) <= 0.55 * len(sd)
+    assert steep.min_angle < 90.0
 
 
 def test_points_seen_under_a_narrow_angle_have_the_worse_depth(

@@ -375,15 +375,13 @@ class LossConfig(_Section):
         2.0, gt=0, description="Use points with a mean reprojection error up to this (px)."
     )
     sparse_min_angle: float = Field(
-        0.0,
+        3.0,
         ge=0,
         description="Use points seen under at least this angle between two of their cameras "
         "(degrees; 0: all): a point seen down the direction of travel has its depth badly "
-        "determined, and short. At 3: C3VD 0.971 / 0.108 and 0.971 / 0.109 against 0.968 / 0.113 "
-        "and 0.969 / 0.113 (two seeds); the bench "
-        "colon's depth the same, its mesh 3.80-4.14% of the radius against 4.10-4.22% with "
-        "every component kept (mesh.min_component_fraction 0), three seeds each; at 5 the "
-        "colon's scale goes (AbsRel 0.0365). Off until the recordings are measured with it.",
+        "determined, and short. At 3 against 0: C3VD 0.971 / 0.108 and 0.971 / 0.109 against "
+        "0.968 / 0.113 and 0.969 / 0.113 (two seeds); the synthetic cases the same within their "
+        "seeds' spread; at 5 the colon's scale goes (AbsRel 0.0365).",
     )
 
 

@@ -25,6 +25,7 @@ class SparseDepth:
     u: torch.Tensor  # (N,)
     v: torch.Tensor  # (N,)
     z: torch.Tensor  # (N,) scene z-depth
+    min_angle: float = 0.0  # the viewing angle (degrees) the points were kept from
 
     def __len__(self) -> int:
         return int(self.frame.shape[0])
@@ -50,18 +51,23 @@ def sparse_depth_targets(
     training frames only), with track length >= `min_track`, reprojection error <= `max_error`
     px, seen under >= `min_angle` degrees (`SparseObservations.angle`), in front of the camera
     and inside the image (and on a `usable` pixel, (H, W) bool, when given: one the lens model
-    reaches); z-depth in scene units (world / scale)."""
+    reaches); z-depth in scene units (world / scale). The angle never drops more than half the
+    points otherwise kept: a camera that barely moves sees them all under a narrow angle, and
+    the wider half still pins the scale better than none."""
     if obs is None or not positions:
         return None
     h, w = size
     keep = np.isin(obs.frame, list(positions)) & (obs.track >= min_track)
-    keep &= (obs.error <= max_error) & (obs.angle >= min_angle)
+    keep &= obs.error <= max_error
     keep &= (obs.uv[:, 0] >= 0) & (obs.uv[:, 0] <= w - 1)
     keep &= (obs.uv[:, 1] >= 0) & (obs.uv[:, 1] <= h - 1)
     if usable is not None:
         col = np.clip(np.round(obs.uv[:, 0]), 0, w - 1).astype(np.int64)
         row = np.clip(np.round(obs.uv[:, 1]), 0, h - 1).astype(np.int64)
         keep &= usable[row, col]
+    if min_angle > 0 and keep.any():
+        min_angle = min(min_angle, float(np.median(obs.angle[keep])))
+        keep &= obs.angle >= min_angle
     idx = np.nonzero(keep)[0]
     if len(idx) == 0:
         return None
@@ -84,4 +90,5 @@ def sparse_depth_targets(
         u=t(obs.uv[idx, 0]),
         v=t(obs.uv[idx, 1]),
         z=t(z / scene_scale),
+        min_angle=min_angle,
     )

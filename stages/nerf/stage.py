@@ -147,6 +147,19 @@ def load_sparse_depth(
     )
 
 
+def sparse_depth_line(sparse, min_angle: float) -> str:
+    """The log line of the SfM-point depth: how many rays, and from which viewing angle."""
+    if not sparse:
+        return "sparse depth: no SfM-point rays (the poses have no usable tracks)"
+    line = f"sparse depth: {len(sparse)} SfM-point rays"
+    if sparse.min_angle < min_angle:
+        return (
+            f"{line}, the wider half of the points (seen under >= {sparse.min_angle:.1f} deg: "
+            f"the camera moved too little for {min_angle:g} deg, nerf.loss.sparse_min_angle)"
+        )
+    return f"{line} (seen under >= {sparse.min_angle:g} deg)" if min_angle > 0 else line
+
+
 def weigh_prior(cfg: NerfConfig, prior, log) -> NerfConfig:
     """L_prior's weight scaled by how well the prior fits the SfM points (its `weight`, from
     the centerline stage); off without a prior. The stage's recorded config is unchanged: the
@@ -226,7 +239,7 @@ def set_up_training(
     if cfg.loss.sparse_weight > 0:
         train_pos = {i: pos[i] for i in train_ids}
         sparse = load_sparse_depth(ingest, poses, train_pos, box, cfg, device)
-        log(f"sparse depth: {len(sparse) if sparse else 0} SfM-point rays")
+        log(sparse_depth_line(sparse, cfg.loss.sparse_min_angle))
     refine = refinement_wanted(cfg.pose_refine.mode, poses.file.source)
     trainer = Trainer(
         cfg, frames, [pos[i] for i in train_ids], prior, box, out, log, sparse, refine
