@@ -29,7 +29,7 @@ from endopipe.stages.nerf.data import FrameSet, holdout_split
 from endopipe.stages.nerf.pose_refine import record, refinement_wanted
 from endopipe.stages.nerf.render import pick_device, render_image, save_model
 from endopipe.stages.nerf.scene import SceneBox
-from endopipe.stages.nerf.sparse_depth import sparse_depth_targets
+from endopipe.stages.nerf.sparse_depth import SparseDepth, sparse_depth_targets
 from endopipe.stages.nerf.summary import NerfSummary
 from endopipe.stages.nerf.train import CHECKPOINT, Trainer, auto_threads
 from endopipe.stages.nerf.view import HELDOUT_RGB_DIR, MODEL_FILE, NerfView
@@ -147,7 +147,7 @@ def load_sparse_depth(
     )
 
 
-def sparse_depth_line(sparse, min_angle: float) -> str:
+def sparse_depth_line(sparse: SparseDepth | None, min_angle: float) -> str:
     """The log line of the SfM-point depth: how many rays, and from which viewing angle."""
     if not sparse:
         return "sparse depth: no SfM-point rays (the poses have no usable tracks)"
