@@ -173,8 +173,20 @@ def recording_options(
     ray_address: str | None,
     light_scale: bool = True,
 ) -> RecordingOptions:
-    """How `run` and `batch` cut a long input into windows and where the windows run."""
+    """How `run` and `batch` cut a long input into windows and where the windows run; a typo
+    or an impossible cut is refused before any work, whether or not the input is long."""
     from endopipe.commands.recording.command import RecordingOptions
+    from endopipe.pipeline.executors import EXECUTORS
+
+    if executor not in EXECUTORS:
+        raise typer.BadParameter(
+            f"'{executor}' is not one of {', '.join(EXECUTORS)}", param_hint="'--executor'"
+        )
+    if overlap >= window:
+        raise typer.BadParameter(
+            f"{overlap} keyframes shared is not under the window's {window}",
+            param_hint="'--overlap'",
+        )
 
     return RecordingOptions(
         window=window,

@@ -99,6 +99,23 @@ def test_unwritable_workdir(tmp_path: Path, video: Path, capsys) -> None:
     assert_clean_failure(code, out, tmp_path, "cannot write to workdir")
 
 
+@pytest.mark.parametrize(
+    ("flags", "expect"),
+    [
+        (["--executor", "slrum"], "'--executor': 'slrum' is not one of local, slurm, ray"),
+        (["--window", "20", "--overlap", "20"], "'--overlap'"),
+    ],
+)
+def test_recording_options_refused_on_a_short_clip(
+    tmp_path: Path, video: Path, capsys, flags: list[str], expect: str
+) -> None:
+    """A typo in where windows run is refused even when the input is too short to need them:
+    otherwise the same command silently runs locally today and fails on a long input."""
+    code, out = run_cli(capsys, "run", str(video), "--workdir", str(tmp_path / "wd"), *flags)
+    assert code == 2, out
+    assert_clean_failure(code, out, tmp_path / "wd", expect)
+
+
 def test_unknown_stage_for_until(tmp_path: Path, video: Path, capsys) -> None:
     code, out = run_cli(
         capsys, "run", str(video), "--workdir", str(tmp_path / "wd"), "--until", "x"
