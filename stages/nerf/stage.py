@@ -26,6 +26,7 @@ from endopipe.stages.nerf import losses
 from endopipe.stages.nerf.bounds import PriorBounds
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.data import FrameSet, holdout_split
+from endopipe.stages.nerf.point_refine import refine_points
 from endopipe.stages.nerf.pose_refine import record, refinement_wanted
 from endopipe.stages.nerf.render import pick_device, render_image, save_model
 from endopipe.stages.nerf.scene import SceneBox
@@ -123,16 +124,29 @@ def regularise_far_view(cfg: NerfConfig, box: SceneBox, log) -> NerfConfig:
 
 
 def load_sparse_depth(
-    ingest, poses, positions: dict[int, int], box, cfg: NerfConfig, device: torch.device
+    ingest,
+    poses,
+    positions: dict[int, int],
+    box,
+    cfg: NerfConfig,
+    device: torch.device,
+    grey: dict[int, np.ndarray] | None = None,
+    log: Callable[[str], None] = print,
 ):
     """SfM-point depth targets of the training frames (None when the poses have no tracks).
-    Pixels are rescaled when the poses' camera has another resolution than the frames."""
+    Pixels are rescaled when the poses' camera has another resolution than the frames. With
+    `nerf.loss.sparse_refine` the points are refined against `grey`, the training frames."""
     obs = poses.observations(ingest.index_by_name())
     k = poses.intrinsics
     if obs is not None and (k.width, k.height) != (ingest.width, ingest.height):
         scale = np.array([ingest.width / k.width, ingest.height / k.height])
         obs.uv = (obs.uv + 0.5) * scale - 0.5
     lc = cfg.loss
+    if obs is not None and lc.sparse_refine and grey:
+        train = {f: poses.c2w[f] for f in grey if f in poses.c2w}
+        camera = k.scaled(ingest.width, ingest.height)
+        obs, moved = refine_points(obs, camera, train, grey.__getitem__)
+        log(f"SfM points refined by patch correlation: {moved.mean():.0%} of their pixels moved")
     return sparse_depth_targets(
         obs,
         positions,
@@ -238,7 +252,8 @@ def set_up_training(
     sparse = None
     if cfg.loss.sparse_weight > 0:
         train_pos = {i: pos[i] for i in train_ids}
-        sparse = load_sparse_depth(ingest, poses, train_pos, box, cfg, device)
+        grey = {i: images[pos[i]].mean(-1) for i in train_ids}
+        sparse = load_sparse_depth(ingest, poses, train_pos, box, cfg, device, grey, log)
         log(sparse_depth_line(sparse, cfg.loss.sparse_min_angle))
     refine = refinement_wanted(cfg.pose_refine.mode, poses.file.source)
     trainer = Trainer(
