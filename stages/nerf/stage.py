@@ -145,8 +145,12 @@ def load_sparse_depth(
     if obs is not None and lc.sparse_refine and grey:
         train = {f: poses.c2w[f] for f in grey if f in poses.c2w}
         camera = k.scaled(ingest.width, ingest.height)
+        t = time.perf_counter()
         obs, moved = refine_points(obs, camera, train, grey.__getitem__)
-        log(f"SfM points refined by patch correlation: {moved.mean():.0%} of their pixels moved")
+        log(
+            f"SfM points refined by patch correlation: {moved.mean():.0%} of their pixels "
+            f"moved ({time.perf_counter() - t:.1f} s)"
+        )
     return sparse_depth_targets(
         obs,
         positions,
