@@ -110,6 +110,8 @@ def best_depth(
     if norm < 1e-4 * np.sqrt(len(patch)):  # a flat patch (grey in [0, 1]) correlates with noise
         return None
     dirs = pixel_directions(camera, pix[:, 0], pix[:, 1])  # z = 1
+    if not np.isfinite(dirs).all():  # a pixel the lens model does not reach
+        return None
     on_plane = dirs[None] * (x_ref[2] * scales)[:, None, None]  # (S, P, 3) reference frame
     world = on_plane @ c2w[ref][:3, :3].T + c2w[ref][:3, 3]
     score, views = np.zeros(len(scales)), 0
@@ -117,7 +119,8 @@ def best_depth(
         if f == ref:
             continue
         uv, z = project_camera(camera, world_to_camera(world.reshape(-1, 3), c2w[int(f)]))
-        if (z <= 0).any() or uv.min() < 0 or uv[:, 0].max() > w - 1 or uv[:, 1].max() > h - 1:
+        inside = np.isfinite(uv).all() and uv.min() >= 0
+        if not inside or (z <= 0).any() or uv[:, 0].max() > w - 1 or uv[:, 1].max() > h - 1:
             continue
         vals = sample(image(int(f)), uv).reshape(len(scales), -1)
         vals = vals - vals.mean(1, keepdims=True)
