@@ -249,7 +249,7 @@ def test_no_cases_and_bad_executor_are_one_line(tmp_path: Path, capsys) -> None:
     assert "no cases found" in capsys.readouterr().err
     args = ["batch", str(tmp_path), "--workdir", str(tmp_path / "wd"), "--executor", "k8s"]
     assert main(args) == 2
-    assert "unknown executor 'k8s'" in capsys.readouterr().err
+    assert "'k8s' is not one of local, slurm, ray" in capsys.readouterr().err
 
 
 def test_batch_page_links_each_case_to_its_report(tmp_path: Path) -> None:
