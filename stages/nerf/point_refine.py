@@ -67,11 +67,10 @@ def refine_points(
         track.sort()
         ref = track[len(track) // 2]
         near = frames[(frames >= track[0] - extend) & (frames <= track[-1] + extend)]
-        depth = best_depth(points[p], ref, near, camera, c2w, image, offsets, scales)
-        if depth is not None:
-            x_ref = world_to_camera(points[p][None], c2w[ref])[0]
-            x_new = x_ref * depth
-            refined[p] = c2w[ref][:3, :3] @ x_new + c2w[ref][:3, 3]
+        x_ref = world_to_camera(points[p][None], c2w[ref])[0]
+        factor = best_depth(x_ref, ref, near, camera, c2w, image, offsets, scales)
+        if factor is not None:  # along the ray: the same pixel in the reference frame
+            refined[p] = c2w[ref][:3, :3] @ (x_ref * factor) + c2w[ref][:3, 3]
             moved[p] = True
     xyz = refined[which]
     uv = obs.uv.copy()
@@ -84,7 +83,7 @@ def refine_points(
 
 
 def best_depth(
-    point: np.ndarray,
+    x_ref: np.ndarray,
     ref: int,
     frames: np.ndarray,
     camera: Camera,
@@ -93,10 +92,9 @@ def best_depth(
     offsets: np.ndarray,
     scales: np.ndarray,
 ) -> float | None:
-    """The factor on the point's reference depth where the patches correlate best (sub-step by
-    a parabola), or None: no other frame sees the whole patch, too little texture, a weak or
-    edge-of-range peak."""
-    x_ref = world_to_camera(point[None], c2w[ref])[0]
+    """The factor on the depth of the point `x_ref` (in the frame `ref`) where the patches
+    correlate best (sub-step by a parabola), or None: no other frame sees the whole patch, too
+    little texture, a weak or edge-of-range peak."""
     if x_ref[2] <= 0:
         return None
     uv0 = project_camera(camera, x_ref[None])[0][0]
