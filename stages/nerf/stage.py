@@ -256,7 +256,7 @@ def set_up_training(
     sparse = None
     if cfg.loss.sparse_weight > 0:
         train_pos = {i: pos[i] for i in train_ids}
-        grey = {i: images[pos[i]].mean(-1) for i in train_ids}
+        grey = {i: images[pos[i]].mean(-1) for i in train_ids} if cfg.loss.sparse_refine else None
         sparse = load_sparse_depth(ingest, poses, train_pos, box, cfg, device, grey, log)
         log(sparse_depth_line(sparse, cfg.loss.sparse_min_angle))
     refine = refinement_wanted(cfg.pose_refine.mode, poses.file.source)
