@@ -73,7 +73,7 @@ def test_points_pushed_off_a_textured_wall_come_back_to_it() -> None:
     errors = np.random.default_rng(1).uniform(-0.08, 0.08, 40)
     obs, truth = observations(c2w, errors)
     images = {i: render(m) for i, m in c2w.items()}
-    refined, moved = refine_points(obs, CAMERA, c2w, images.__getitem__)
+    refined, moved = refine_points(obs, CAMERA, c2w, images)
     assert moved.mean() > 0.8
     ref = c2w[4]
     first = refined.xyz[: len(truth)]
@@ -91,6 +91,6 @@ def test_a_point_on_a_flat_wall_stays() -> None:
     c2w = cameras(5)
     obs, _ = observations(c2w, np.array([0.05, -0.05]))
     images = {i: render(m, flat=True) for i, m in c2w.items()}
-    refined, moved = refine_points(obs, CAMERA, c2w, images.__getitem__)
+    refined, moved = refine_points(obs, CAMERA, c2w, images)
     assert not moved.any()
     assert np.array_equal(refined.xyz, obs.xyz)

@@ -215,7 +215,7 @@ def test_refined_sfm_points_lie_nearer_the_true_depth(colon: Path, colon_run: Pa
     obs = poses.observations({Path(f.file).name: f.index for f in ingest.frames})
     assert obs is not None
     grey = {i: ingest.image(i).mean(-1) / 255.0 for i in poses.c2w}
-    refined, moved = refine_points(obs, poses.intrinsics, poses.c2w, grey.__getitem__)
+    refined, moved = refine_points(obs, poses.intrinsics, poses.c2w, grey)
 
     def share_off(o) -> float:
         err = relative_depth_error(colon, poses, ingest, o)

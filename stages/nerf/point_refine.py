@@ -11,7 +11,7 @@ keypoint narrow the error (bench colon: 28% -> 21% of the tracked pixels over 5%
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Mapping
 
 import numpy as np
 from scipy.ndimage import map_coordinates
@@ -36,23 +36,16 @@ def refine_points(
     obs: SparseObservations,
     camera: Camera,
     c2w: dict[int, np.ndarray],
-    grey: Callable[[int], np.ndarray],
+    grey: Mapping[int, np.ndarray],
     extend: int = EXTEND,
 ) -> tuple[SparseObservations, np.ndarray]:
     """(observations with the refined points and their pixels re-projected, which observations
-    moved), the frames compared being those of `c2w`. `grey(frame)`: the frame as a float image
+    moved), the frames compared being those of `c2w`. `grey[frame]`: the frame as a float image
     in [0, 1]; `extend`: frames beyond either end of a point's track that are compared too. A
     point without a clear best depth stays as SfM put it."""
     points, which = np.unique(obs.xyz, axis=0, return_inverse=True)
     which = which.ravel()
     frames = np.array(sorted(c2w))
-    cache: dict[int, np.ndarray] = {}
-
-    def image(f: int) -> np.ndarray:
-        if f not in cache:
-            cache[f] = grey(f)
-        return cache[f]
-
     grid = np.arange(-HALF, HALF + 1, dtype=np.float64)
     offsets = np.stack(np.meshgrid(grid, grid), -1).reshape(-1, 2)
     scales = np.linspace(1.0 - SPAN, 1.0 + SPAN, STEPS)
@@ -68,7 +61,7 @@ def refine_points(
         ref = track[len(track) // 2]
         near = frames[(frames >= track[0] - extend) & (frames <= track[-1] + extend)]
         x_ref = world_to_camera(points[p][None], c2w[ref])[0]
-        factor = best_depth(x_ref, ref, near, camera, c2w, image, offsets, scales)
+        factor = best_depth(x_ref, ref, near, camera, c2w, grey, offsets, scales)
         if factor is not None:  # along the ray: the same pixel in the reference frame
             refined[p] = c2w[ref][:3, :3] @ (x_ref * factor) + c2w[ref][:3, 3]
             moved[p] = True
@@ -88,7 +81,7 @@ def best_depth(
     frames: np.ndarray,
     camera: Camera,
     c2w: dict[int, np.ndarray],
-    image: Callable[[int], np.ndarray],
+    image: Mapping[int, np.ndarray],
     offsets: np.ndarray,
     scales: np.ndarray,
 ) -> float | None:
@@ -99,10 +92,10 @@ def best_depth(
         return None
     uv0 = project_camera(camera, x_ref[None])[0][0]
     pix = uv0 + offsets
-    h, w = image(ref).shape
+    h, w = image[ref].shape
     if pix.min() < 0 or pix[:, 0].max() > w - 1 or pix[:, 1].max() > h - 1:
         return None
-    patch = sample(image(ref), pix)
+    patch = sample(image[ref], pix)
     patch = patch - patch.mean()
     norm = float(np.linalg.norm(patch))
     if norm < 1e-4 * np.sqrt(len(patch)):  # a flat patch (grey in [0, 1]) correlates with noise
@@ -120,7 +113,7 @@ def best_depth(
         inside = np.isfinite(uv).all() and uv.min() >= 0
         if not inside or (z <= 0).any() or uv[:, 0].max() > w - 1 or uv[:, 1].max() > h - 1:
             continue
-        vals = sample(image(int(f)), uv).reshape(len(scales), -1)
+        vals = sample(image[int(f)], uv).reshape(len(scales), -1)
         vals = vals - vals.mean(1, keepdims=True)
         score += (vals @ patch) / (np.linalg.norm(vals, axis=1) * norm + 1e-9)
         views += 1

@@ -135,18 +135,18 @@ def load_sparse_depth(
 ):
     """SfM-point depth targets of the training frames (None when the poses have no tracks).
     Pixels are rescaled when the poses' camera has another resolution than the frames. With
-    `nerf.loss.sparse_refine` the points are refined against `grey`, the training frames."""
+    `grey`, the training frames (given when `nerf.loss.sparse_refine`), the points are refined."""
     obs = poses.observations(ingest.index_by_name())
     k = poses.intrinsics
     if obs is not None and (k.width, k.height) != (ingest.width, ingest.height):
         scale = np.array([ingest.width / k.width, ingest.height / k.height])
         obs.uv = (obs.uv + 0.5) * scale - 0.5
     lc = cfg.loss
-    if obs is not None and lc.sparse_refine and grey:
+    if obs is not None and grey:
         train = {f: poses.c2w[f] for f in grey if f in poses.c2w}
         camera = k.scaled(ingest.width, ingest.height)
         t = time.perf_counter()
-        obs, moved = refine_points(obs, camera, train, grey.__getitem__)
+        obs, moved = refine_points(obs, camera, train, grey)
         log(
             f"SfM points refined by patch correlation: {moved.mean():.0%} of their pixels "
             f"moved ({time.perf_counter() - t:.1f} s)"
