@@ -67,6 +67,14 @@ LightScaleOption = Annotated[
         "(assumes a fixed exposure; off for a scope with auto-exposure)."
     ),
 ]
+OneSfmOption = Annotated[
+    int,
+    typer.Option(
+        min=0,
+        help="A recording of at most this many keyframes is posed by one SfM and its lumen "
+        "fitted once; the windows then split only the field (0: each window its own SfM).",
+    ),
+]
 
 
 #: The DAG in order: each stage's module and class.
@@ -126,6 +134,7 @@ def run(
     window: WindowOption = 100,
     overlap: OverlapOption = 12,
     light_scale: LightScaleOption = True,
+    one_sfm_up_to: OneSfmOption = 200,
     executor: Annotated[
         str, typer.Option(help="Where a recording's windows run: local | slurm | ray.")
     ] = "local",
@@ -158,7 +167,14 @@ def run(
         wait=wait,
         quiet=quiet,
         recording=recording_options(
-            window, overlap, executor, jobs, cluster_config, ray_address, light_scale
+            window,
+            overlap,
+            executor,
+            jobs,
+            cluster_config,
+            ray_address,
+            light_scale,
+            one_sfm_up_to,
         ),
         case_fn=batch_case,
     )
@@ -172,6 +188,7 @@ def recording_options(
     cluster_config: Path | None,
     ray_address: str | None,
     light_scale: bool = True,
+    one_sfm_up_to: int = 200,
 ) -> RecordingOptions:
     """How `run` and `batch` cut a long input into windows and where the windows run; a typo
     or an impossible cut is refused before any work, whether or not the input is long."""
@@ -196,6 +213,7 @@ def recording_options(
         cluster_config=str(cluster_config) if cluster_config else None,
         ray_address=ray_address,
         light_scale=light_scale,
+        one_sfm_up_to=one_sfm_up_to,
     )
 
 
@@ -441,6 +459,7 @@ def batch(
     window: WindowOption = 100,
     overlap: OverlapOption = 12,
     light_scale: LightScaleOption = True,
+    one_sfm_up_to: OneSfmOption = 200,
     dry_run: Annotated[bool, typer.Option(help="List the cases and readers only.")] = False,
 ) -> None:
     """Run every case under FOLDER through the pipeline; write batch.csv and batch.html. A long
@@ -462,7 +481,14 @@ def batch(
         cluster_config=cluster_config,
         ray_address=ray_address,
         recording=recording_options(
-            window, overlap, executor, jobs, cluster_config, ray_address, light_scale
+            window,
+            overlap,
+            executor,
+            jobs,
+            cluster_config,
+            ray_address,
+            light_scale,
+            one_sfm_up_to,
         ),
         dry_run=dry_run,
         console=console,

@@ -31,6 +31,7 @@ from endopipe.stages.io.colmap_model import (
     PoseSet,
     camera_from_colmap,
     camera_to_colmap,
+    keep_images,
     read_colmap_model,
     write_text_model,
 )
@@ -393,6 +394,39 @@ def test_source_file_reads_a_colmap_model_and_a_transforms_json(
             assert len(view.points()) == len(reference.points())
         else:  # transforms.json has none: triangulated from its poses
             assert summary(wd / "colon")["points"] > 100
+
+
+def test_a_models_tracks_are_kept_for_the_frames_it_poses(
+    colon: Path, colon_run: Path, tmp_path: Path
+) -> None:
+    """A COLMAP model given as poses.file keeps its tracks (the SfM-point depth and the lumen
+    fit read them) for a case of a stretch of its frames, matched by the number in their name
+    (their position in the input): each frame sees the points it saw in the whole model that
+    another frame of the stretch sees too."""
+    import pycolmap
+
+    rec = pycolmap.Reconstruction(str(colon_run / "02_poses" / "sparse"))
+    keep_images(rec, {im.name: f"frame_{int(im.name[:6]):04d}.jpg" for im in rec.images.values()})
+    (tmp_path / "model").mkdir()
+    rec.write_text(str(tmp_path / "model"))
+    stretch = list(range(5, 15))
+    model = f"poses.file={tmp_path / 'model'}"
+    frames = f"ingest.frames=[{','.join(map(str, stretch))}]"
+    code, _ = run(None, colon, tmp_path, "poses.source=file", model, frames)
+    assert code == 0
+    case = tmp_path / "colon"
+    view, ingest = PosesView(case / "02_poses"), IngestView(case / "01_ingest")
+    ref = PosesView(colon_run / "02_poses")
+    ref_obs = ref.observations(IngestView(colon_run / "01_ingest").index_by_name())
+    obs = view.observations(ingest.index_by_name())
+    assert obs is not None and view.registered == list(range(len(stretch)))
+    for i, source in enumerate(stretch):
+        mine = {tuple(np.round(uv, 3)) for uv in obs.uv[obs.frame == i]}
+        theirs = {tuple(np.round(uv, 3)) for uv in ref_obs.uv[ref_obs.frame == source]}
+        assert mine <= theirs and len(mine) >= 0.5 * len(theirs), (i, len(mine), len(theirs))
+    kept = pycolmap.Reconstruction(str(case / "02_poses" / "sparse"))
+    assert kept.num_images() == len(stretch)  # the tracks hold these frames only
+    assert summary(case)["points"] == kept.num_points3D() > 500  # 975 of the model's 1,528
 
 
 def test_source_file_missing_is_one_line(colon: Path, tmp_path: Path, capsys) -> None:

@@ -95,7 +95,7 @@ def test_a_withdrawal_through_windows_matches_the_truth_and_one_window(
 ) -> None:
     wd = tmp_path / "wd"
     args = ["run", str(withdrawal), "--workdir", str(wd), "--until", "poses", "--quiet"]
-    args += ["--set", "ingest.keyframes.mode=content"]
+    args += ["--set", "ingest.keyframes.mode=content", "--one-sfm-up-to", "0"]
     assert main([*args, "--window", "14", "--overlap", "5"]) == 0
     case = wd / "withdrawal"
     summary = json.loads((case / "recording" / "summary.json").read_text())
@@ -124,6 +124,43 @@ def test_a_withdrawal_through_windows_matches_the_truth_and_one_window(
     assert main([*args, "--window", "14", "--overlap", "5"]) == 0
     assert [len(list((w / "runs").glob("*.json"))) for w in windows] == before
     assert (case / "recording" / "key.json").stat().st_mtime_ns == written
+
+
+def test_a_short_recording_is_posed_once_and_its_windows_take_their_stretch(
+    withdrawal: Path, tmp_path: Path
+) -> None:
+    """Keyframes few enough for one SfM (`--one-sfm-up-to`, 200 by default): the recording's
+    own case is posed and its lumen fitted once; each window takes its frames' poses, their
+    tracks and that lumen, so the windows join where the one SfM put them."""
+    from endopipe.stages.ingest.view import IngestView
+    from endopipe.stages.poses.view import PosesView
+
+    wd = tmp_path / "wd"
+    args = ["run", str(withdrawal), "--workdir", str(wd), "--until", "centerline", "--quiet"]
+    args += ["--set", "ingest.keyframes.mode=content", "--window", "14", "--overlap", "5"]
+    assert main(args) == 0
+    case = wd / "withdrawal"
+    summary = json.loads((case / "recording" / "summary.json").read_text())
+    assert len(summary["windows"]) >= 2 and summary["segments"] == 1, summary["reasons"]
+    ingest = IngestView(case / "01_ingest")
+    whole = {ingest.frame(i).source_index: c for i, c in PosesView(case / "02_poses").c2w.items()}
+    joined = _trajectory(case)
+    assert set(joined) == set(whole)
+    ate = pose_metrics(joined, whole)["ate_percent_of_path"]
+    assert ate < 0.01, ate  # the one SfM's path (each window re-aligned to the truth alone)
+    for window in sorted((case / "windows").iterdir()):
+        poses = PosesView(window / "02_poses")
+        frames = IngestView(window / "01_ingest")
+        assert poses.summary.source == "file"
+        obs = poses.observations(frames.index_by_name())
+        assert obs is not None and len(np.unique(obs.frame)) == len(frames.frames)
+        prior = json.loads((window / "03_centerline" / "manifest.json").read_text())["summary"]
+        assert prior["prior_reason"].startswith("given"), prior["prior_reason"]
+    # a re-run changes nothing: the shared folder and every window are fresh
+    written = (case / "recording" / "key.json").stat().st_mtime_ns
+    assert main(args) == 0
+    assert (case / "recording" / "key.json").stat().st_mtime_ns == written
+    assert len(list((case / "one_sfm").iterdir())) == 1
 
 
 def test_a_frame_between_keyframes_registers_on_their_depth(withdrawal: Path) -> None:
@@ -177,7 +214,7 @@ def test_sigkill_mid_recording_reruns_only_unfinished_windows(
     wd = tmp_path / "wd"
     cmd = [sys.executable, "-m", "endopipe", "run", str(withdrawal), "--workdir", str(wd)]
     cmd += ["--until", "poses", "--quiet", "--set", "ingest.keyframes.mode=content"]
-    cmd += ["--window", "14", "--overlap", "5"]
+    cmd += ["--window", "14", "--overlap", "5", "--one-sfm-up-to", "0"]
     proc = subprocess.Popen(
         cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
     )
@@ -206,7 +243,7 @@ def test_windows_on_ray_and_submitit_give_the_local_trajectory(
     executor): the joined trajectory's ATE within 0.1 point of the local executor's."""
     pytest.importorskip("ray" if executor == "ray" else "submitit")
     args = ["--until", "poses", "--quiet", "--set", "ingest.keyframes.mode=content"]
-    args += ["--window", "14", "--overlap", "5"]
+    args += ["--window", "14", "--overlap", "5", "--one-sfm-up-to", "0"]
     truth = json.loads((withdrawal / "gt" / "poses.json").read_text())["poses"]
     truth = {i: np.array(p) for i, p in enumerate(truth)}
 
@@ -301,7 +338,7 @@ def test_a_withdrawal_through_windows_to_one_mesh_is_redrawn_by_the_light(
     wd = tmp_path / "wd"
     args = ["run", str(withdrawal), "--workdir", str(wd), "--quiet", "--config", "fast"]
     args += ["--set", "ingest.keyframes.mode=content", "--set", "nerf.train.steps=300"]
-    assert main([*args, "--window", "14", "--overlap", "5"]) == 0
+    assert main([*args, "--window", "14", "--overlap", "5", "--one-sfm-up-to", "0"]) == 0
     summary = json.loads((wd / "withdrawal" / "recording" / "summary.json").read_text())
     light = summary["light_scale"]
     print(light, summary["ate_as_joined_pct"], summary["ate_percent_of_path"])

@@ -54,7 +54,8 @@ def show_status(
 
 def show_windows(case_dir: Path) -> None:
     """A recording's windows, each a case of its own: where they are and how the last join
-    went (the stages above are the whole recording's; only its ingest runs there)."""
+    went (the stages above are the whole recording's: its ingest, and its poses and centerline
+    when it was posed by one SfM)."""
     import json
 
     windows = sorted(p for p in (case_dir / "windows").glob("w[0-9][0-9][0-9]") if p.is_dir())

@@ -18,6 +18,13 @@ class CenterlineConfig(StageConfig):
         "best, or none when neither predicts min_fit of them; tube: a curve with a radius "
         "(colon); cavity: an ellipsoid (stomach); none: no anatomical prior.",
     )
+    given_prior: str | None = Field(
+        None,
+        description="A folder holding a prior fitted over a longer stretch of the same frames "
+        "(prior.npz, and cameras.json: that reconstruction's camera centres by input frame), "
+        "used instead of this case's own, placed by the cameras both registered. A short "
+        "recording gives its windows the lumen of its one SfM this way.",
+    )
     insist: bool = Field(
         False,
         description="Keep a prior set by the config (tube / cavity) even when the SfM points "

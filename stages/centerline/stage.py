@@ -27,6 +27,7 @@ from endopipe.stages.centerline.choose import (
 )
 from endopipe.stages.centerline.config import CenterlineConfig
 from endopipe.stages.centerline.evaluate import compare_to_truth
+from endopipe.stages.centerline.given import place_given_prior
 from endopipe.stages.centerline.plot import plot_centerline
 from endopipe.stages.centerline.prior import FreePrior, LumenPrior
 from endopipe.stages.centerline.summary import CenterlineSummary
@@ -112,6 +113,14 @@ class Centerline(Stage):
                     f"{prior.core_limit:.2f} of the wall wide: wider, it would hold over "
                     f"{100 * cfg.core_share:.0f}% of the SfM observations"
                 )
+        reason = choice.reason
+        if cfg.given_prior:
+            prior, apart = place_given_prior(Path(cfg.given_prior), ctx.input("ingest"), poses)
+            reason = (
+                f"given: the {prior.kind} of {cfg.given_prior}, placed by the shared cameras "
+                f"({apart:.2f}% of their path apart); this case's own choice: {choice.kind}"
+            )
+            ctx.log(f"prior: {reason}")
         prior.save(ctx.out / PRIOR_FILE)
         file = fit.to_file(units).model_dump(mode="json", exclude_none=True)
         file["kind"] = choice.kind
@@ -130,15 +139,19 @@ class Centerline(Stage):
                 scores = compare_to_truth(fit, *truth)
         plot_centerline(ctx.out / PLOT_FILE, fit, centres, points, units, truth)
         summary = CenterlineSummary(
-            kind=choice.kind,
-            prior_reason=choice.reason,
+            kind=prior.kind,
+            prior_reason=reason,
             prior_weight=prior.weight,
             prior_scores=choice.scores,
             reach=reach,
             wall_margin=prior.margin,
             core_limit=prior.core_limit,
             length=fit.length,
-            mean_radius=prior.own_radius if prior.kind != "tube" else float(np.mean(fit.radius)),
+            mean_radius=(
+                prior.own_radius
+                if prior.kind != "tube" or cfg.given_prior
+                else float(np.mean(fit.radius))
+            ),
             radius_source=fit.radius_source,
             radius_note=fit.radius_note,
             n_points_used=fit.n_points_used,

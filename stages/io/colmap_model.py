@@ -15,6 +15,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -124,6 +125,7 @@ class PoseSet:
     xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     rgb: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.uint8))
     colmap_model: str | None = None  # the COLMAP model the camera came as (None: none given)
+    reconstruction: Any = None  # the pycolmap.Reconstruction read, with its tracks (a model)
 
 
 def c2w_from_cam_from_world(matrix_3x4: np.ndarray) -> np.ndarray:
@@ -216,7 +218,20 @@ def read_colmap_model(folder: Path) -> PoseSet:
         if img.has_pose
     }
     xyz, rgb = reconstruction_points(rec)
-    return PoseSet(camera, poses, xyz, rgb, model)
+    return PoseSet(camera, poses, xyz, rgb, model, rec)
+
+
+def keep_images(rec, names: dict[str, str]) -> None:
+    """`rec` cut to the images named in `names` (old name -> new name), renamed: every other
+    image is deregistered, so its observations leave the tracks (points left seen by fewer than
+    two images are deleted by COLMAP)."""
+    for image in list(rec.images.values()):
+        if image.name in names:
+            image.name = names[image.name]
+            continue
+        if image.has_pose:
+            rec.deregister_frame(image.frame_id)
+        image.name = f"unused-{image.image_id}"  # never one of the new names
 
 
 def reconstruction_points(rec) -> tuple[np.ndarray, np.ndarray]:

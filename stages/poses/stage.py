@@ -27,6 +27,7 @@ from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.io.colmap_model import (
     PoseSet,
     camera_to_colmap,
+    keep_images,
     read_colmap_model,
     reconstruction_points,
     trailing_number,
@@ -339,6 +340,9 @@ def triangulate(est: Estimate, ingest: IngestView, cfg: PosesConfig, ctx: StageC
 
 
 def from_file(ingest: IngestView, cfg: PosesConfig) -> Estimate:
+    """Poses from a COLMAP model or a transforms.json. A model's tracks are kept for the frames
+    it poses (the SfM-point depth and the lumen fit need them), unless its camera has another
+    resolution than the frames."""
     if not cfg.file:
         raise ConfigError(
             "poses.source=file needs --set poses.file=PATH (a COLMAP model folder or "
@@ -353,7 +357,8 @@ def from_file(ingest: IngestView, cfg: PosesConfig) -> Estimate:
         if not any(path.glob("cameras.*")) and not (path / "sparse").is_dir():
             path = path / "transforms.json"
     poses = read_transforms_json(path) if path.is_file() else read_colmap_model(path)
-    c2w = match_frames(poses, ingest)
+    frame_of = match_names(list(poses.c2w), ingest)
+    c2w = {i: poses.c2w[name] for name, i in frame_of.items()}
     if not c2w:
         some = ", ".join(list(poses.c2w)[:3])
         raise InputError(
@@ -381,7 +386,7 @@ def from_file(ingest: IngestView, cfg: PosesConfig) -> Estimate:
             f"{path} gives no intrinsics and none are known; add fl_x, fl_y, cx, cy, w, h to it or "
             "pass --intrinsics FILE"
         )
-    return Estimate(
+    est = Estimate(
         camera=camera,
         colmap_model=model,
         c2w=c2w,
@@ -390,9 +395,21 @@ def from_file(ingest: IngestView, cfg: PosesConfig) -> Estimate:
         intrinsics_kind=kind,
         info={"models": 1, "file": str(path)},
     )
+    rec = poses.reconstruction
+    if rec is not None and rec.num_points3D() and camera is poses.camera:
+        names = {i: name for name, i in ingest.index_by_name().items()}
+        keep_images(rec, {name: names[i] for name, i in frame_of.items()})
+        est.xyz, est.rgb = reconstruction_points(rec)
+        est.reconstruction = rec
+    return est
 
 
 def match_frames(poses: PoseSet, ingest: IngestView) -> dict[int, np.ndarray]:
+    """A file's poses by endopipe frame index (see `match_names`)."""
+    return {i: poses.c2w[name] for name, i in match_names(list(poses.c2w), ingest).items()}
+
+
+def match_names(names: list[str], ingest: IngestView) -> dict[str, int]:
     """Map a file's image names to endopipe frames: the strategy matching the most frames wins.
 
     By endopipe name (000000.png), by the input's own file names (image folders), or by the
@@ -403,13 +420,11 @@ def match_frames(poses: PoseSet, ingest: IngestView) -> dict[int, np.ndarray]:
     by_source_name = ingest.index_by_source_stem()
     candidates = []
     for table in (by_name, by_source_name):
-        candidates.append(
-            {table[Path(n).stem]: c for n, c in poses.c2w.items() if Path(n).stem in table}
-        )
-    numbers = {n: trailing_number(n) for n in poses.c2w}
+        candidates.append({n: table[Path(n).stem] for n in names if Path(n).stem in table})
+    numbers = {n: trailing_number(n) for n in names}
     if len(set(numbers.values())) == len(numbers):
         candidates.append(
-            {by_source_index[v]: poses.c2w[n] for n, v in numbers.items() if v in by_source_index}
+            {n: by_source_index[v] for n, v in numbers.items() if v in by_source_index}
         )
     return max(candidates, key=len)
 

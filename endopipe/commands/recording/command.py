@@ -28,6 +28,7 @@ from endopipe.commands.recording.frames import pose_every_frame
 from endopipe.commands.recording.fuse import one_mesh
 from endopipe.commands.recording.join import Joined, join_windows
 from endopipe.commands.recording.light_scale import LightScale, correct_drift
+from endopipe.commands.recording.one_sfm import pose_once, window_settings
 from endopipe.commands.recording.summary import (
     RecordingSummary,
     joined_ate,
@@ -59,6 +60,12 @@ class RecordingOptions(BaseModel):
     light_scale: bool = Field(
         True, description="Redraw the joined path for the scale drift the light measures."
     )
+    one_sfm_up_to: int = Field(
+        200,
+        ge=0,
+        description="A recording of at most this many keyframes is posed by one SfM and its "
+        "lumen fitted once; the windows take their stretch of both (0: each window its own).",
+    )
 
 
 def is_long_input(
@@ -83,10 +90,16 @@ def is_recording(pipe: Pipeline, case_dir: Path, options: RecordingOptions) -> b
     return bool(ingest.summary.keyframes) and len(ingest.frames) > options.window
 
 
-def window_configs(configs: dict[str, StageConfig], frames: list[int]) -> dict[str, dict]:
+def window_configs(
+    configs: dict[str, StageConfig], frames: list[int], shared: Path | None = None
+) -> dict[str, dict]:
     """The run's settings for one window: ingest takes exactly its keyframes (already vetted
-    for blur, light and motion by the recording's own ingest)."""
+    for blur, light and motion by the recording's own ingest); with `shared`, the poses and
+    lumen of the recording's one SfM."""
     resolved = {name: cfg.model_dump(mode="json") for name, cfg in configs.items()}
+    if shared is not None:
+        for stage, settings in window_settings(shared).items():
+            resolved[stage] = {**resolved[stage], **settings}
     ingest = copy.deepcopy(resolved["ingest"])
     ingest.update(
         frames=frames,
@@ -126,13 +139,18 @@ def run_recording(
         f"{len(plan.windows)} windows of {len(plan.windows[0])} ({plan.overlap} or more shared), "
         f"{options.executor} executor"
     )
+    shared = None
+    if len(keyframes) <= options.one_sfm_up_to and (
+        until is None or pipe.index(until) >= pipe.index("poses")
+    ):
+        shared = pose_once(pipe, case_dir, configs, console, from_stage=from_stage, force=force)
     tasks = [
         CaseTask(
             name=plan.name(k),
             input=info.input,
             reader=info.kind,
             workdir=str(windows_dir),
-            configs=window_configs(configs, frames),
+            configs=window_configs(configs, frames, shared),
             until=until,
             intrinsics=info.intrinsics_file,
             from_stage=from_stage,
