@@ -139,11 +139,41 @@ def run_recording(
         f"{len(plan.windows)} windows of {len(plan.windows[0])} ({plan.overlap} or more shared), "
         f"{options.executor} executor"
     )
+    cluster = (
+        load_cluster_config(Path(options.cluster_config) if options.cluster_config else None)
+        if options.executor != "local"
+        else ClusterConfig()
+    )
+
+    def send(tasks: list[CaseTask], on_row: Callable[[CaseRow], None]) -> list[CaseRow]:
+        return run_cases(
+            options.executor,
+            case_fn,
+            tasks,
+            jobs=options.jobs,
+            workdir=windows_dir,
+            cluster=cluster,
+            ray_address=options.ray_address,
+            on_row=on_row,
+            note=lambda m: console.print(f"[dim]{escape(m)}[/dim]"),
+        )
+
     shared = None
     if len(keyframes) <= options.one_sfm_up_to and (
         until is None or pipe.index(until) >= pipe.index("poses")
     ):
-        shared = pose_once(pipe, case_dir, configs, console, from_stage=from_stage, force=force)
+        whole = CaseTask(
+            name=case_dir.name,
+            input=info.input,
+            reader=info.kind,
+            workdir=str(case_dir.parent.resolve()),
+            configs={name: cfg.model_dump(mode="json") for name, cfg in configs.items()},
+            until="centerline",
+            intrinsics=info.intrinsics_file,
+            from_stage=from_stage if from_stage in ("ingest", "poses", "centerline") else None,
+            force=force,
+        )
+        shared = pose_once(pipe, case_dir, send([whole], lambda row: None)[0], console)
     tasks = [
         CaseTask(
             name=plan.name(k),
@@ -158,22 +188,7 @@ def run_recording(
         )
         for k, frames in enumerate(plan.windows)
     ]
-    cluster = (
-        load_cluster_config(Path(options.cluster_config) if options.cluster_config else None)
-        if options.executor != "local"
-        else ClusterConfig()
-    )
-    rows = run_cases(
-        options.executor,
-        case_fn,
-        tasks,
-        jobs=options.jobs,
-        workdir=windows_dir,
-        cluster=cluster,
-        ray_address=options.ray_address,
-        on_row=lambda row: _print_window(console, row),
-        note=lambda m: console.print(f"[dim]{escape(m)}[/dim]"),
-    )
+    rows = send(tasks, lambda row: _print_window(console, row))
     key = recording_key(pipe, case_dir, plan, configs, until, info, options.light_scale)
     final = case_dir / RECORDING_DIR
     if all(r.status == "ok" and not r.stages_ran for r in rows) and _stored_key(final) == key:

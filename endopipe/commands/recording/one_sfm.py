@@ -8,8 +8,10 @@ second window's poses alone lie 5.41% of the path from the whole clip's, the joi
 and each window fits a straight, wide tube to its stretch (depth SSI-AbsRel 0.205 against the
 whole clip's 0.114). Longer recordings keep a SfM per window (poses cost n^1.57).
 
-The shared folder, `<case>/one_sfm/<key>/`, is named after the poses and centerline stages'
-cache keys, so the windows' settings (and so their cache keys) change when those re-run.
+The recording's own case runs as one task on the run's executor, as a window would (on a
+cluster, not in the driver). The shared folder, `<case>/one_sfm/<key>/`, is named after the
+poses and centerline stages' cache keys, so the windows' settings (and so their cache keys)
+change when those re-run.
 """
 
 from __future__ import annotations
@@ -21,37 +23,24 @@ from pathlib import Path
 from rich.console import Console
 from rich.markup import escape
 
-from endopipe.pipeline.errors import StageFailed
+from endopipe.commands.batch.rows import CaseRow
 from endopipe.pipeline.runner import Pipeline
-from endopipe.pipeline.stage import StageConfig
 
 ONE_SFM_DIR = "one_sfm"
 
 
-def pose_once(
-    pipe: Pipeline,
-    case_dir: Path,
-    configs: dict[str, StageConfig],
-    console: Console,
-    *,
-    from_stage: str | None,
-    force: bool,
-) -> Path | None:
-    """Run the recording's own case to its lumen prior and write what the windows take from it;
-    the folder, or None (with a line saying so) when its poses failed: each window then poses
-    its own stretch."""
-    early = from_stage if from_stage in ("ingest", "poses", "centerline") else None
-    console.print("[dim]one SfM over the recording's keyframes, its lumen fitted once[/dim]")
-    try:
-        pipe.run(
-            case_dir, configs, until="centerline", from_stage=early, force=force, console=console
-        )
-    except StageFailed as e:
+def pose_once(pipe: Pipeline, case_dir: Path, row: CaseRow, console: Console) -> Path | None:
+    """After the recording's own case ran to its lumen prior (`row`, a task on the run's
+    executor like a window), what the windows take from it; None (with a line saying so)
+    when that failed: each window then poses its own stretch."""
+    if row.status != "ok":
         console.print(
-            f"[yellow]one SfM over the recording failed ({escape(str(e).splitlines()[0])}); "
-            "each window poses its own stretch[/yellow]"
+            f"[yellow]one SfM over the recording failed ({escape(row.reason)}); each window "
+            "poses its own stretch[/yellow]"
         )
         return None
+    ran = f"ran {'+'.join(row.stages_ran)}" if row.stages_ran else "cached"
+    console.print(f"[green]✓[/green] one SfM over the recording's keyframes, {ran}")
     keys = [pipe.manifest(case_dir, s).key for s in ("poses", "centerline")]  # type: ignore[union-attr]
     folder = case_dir / ONE_SFM_DIR / hashlib.sha256("".join(keys).encode()).hexdigest()[:16]
     if not folder.is_dir():
