@@ -101,6 +101,8 @@ def test_a_withdrawal_through_windows_matches_the_truth_and_one_window(
     summary = json.loads((case / "recording" / "summary.json").read_text())
     assert len(summary["windows"]) >= 2 and summary["segments"] == 1
     assert summary["verdict"] == "ok", summary["reasons"]
+    assert not summary["one_sfm"]
+    assert not (case / "one_sfm").exists()
     joined = _trajectory(case)
     truth = json.loads((withdrawal / "gt" / "poses.json").read_text())["poses"]
     truth = {i: np.array(p) for i, p in enumerate(truth)}
@@ -142,6 +144,7 @@ def test_a_short_recording_is_posed_once_and_its_windows_take_their_stretch(
     case = wd / "withdrawal"
     summary = json.loads((case / "recording" / "summary.json").read_text())
     assert len(summary["windows"]) >= 2 and summary["segments"] == 1, summary["reasons"]
+    assert summary["one_sfm"]
     ingest = IngestView(case / "01_ingest")
     whole = {ingest.frame(i).source_index: c for i, c in PosesView(case / "02_poses").c2w.items()}
     joined = _trajectory(case)

@@ -45,7 +45,7 @@ RECORDING_DIR = "recording"
 WINDOWS_DIR = "windows"
 KEY_FILE = "key.json"
 #: Bumped when what the recording writes from the same windows changes.
-RECORDING_VERSION = 3
+RECORDING_VERSION = 4
 
 
 class RecordingOptions(BaseModel):
@@ -205,6 +205,7 @@ def run_recording(
     as_joined = joined
     joined, light = _redraw_for_light(pipe, windows_dir, joined, configs, ingest, options, until)
     summary = summarise(plan, rows, joined, truth)
+    summary.one_sfm = shared is not None
     summary.light_scale = light
     if light.applied:
         summary.ate_as_joined_pct = joined_ate(as_joined, truth)[0]
@@ -406,9 +407,10 @@ def _print_summary(
             "the seen surface"
         )
     colour = "green" if summary.verdict == "ok" else "yellow"
+    how = " by one SfM" if summary.one_sfm else ""
     console.print(
         f"[{colour}]{summary.verdict}[/{colour}]: {summary.posed_keyframes} of "
-        f"{summary.keyframes} keyframes posed in {summary.segments} segment(s){ate} -> "
+        f"{summary.keyframes} keyframes posed{how} in {summary.segments} segment(s){ate} -> "
         f"{case_dir / RECORDING_DIR}",
         soft_wrap=True,
     )

@@ -147,6 +147,10 @@ def write_report(
     absrel = "SSI-AbsRel" if relative else "AbsRel"
     scores = [
         ("keyframes / windows", f"{summary.keyframes} / {len(plan.windows)}"),
+        (
+            "poses",
+            "one SfM over the recording" if summary.one_sfm else "each window's own SfM, joined",
+        ),
         ("segments", str(summary.segments)),
         ("ATE, joined trajectory (% of path)", fmt(summary.ate_percent_of_path)),
         ("ATE as joined, before the light's scale (% of path)", fmt(summary.ate_as_joined_pct)),

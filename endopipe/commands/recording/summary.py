@@ -29,6 +29,7 @@ class RecordingSummary(BaseModel):
 
     keyframes: int
     windows: list[WindowRow]
+    one_sfm: bool = False  # posed by one SfM over the recording, its windows cut from it
     segments: int
     posed_keyframes: int
     verdict: str  # ok | doubtful
