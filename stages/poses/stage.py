@@ -396,7 +396,8 @@ def from_file(ingest: IngestView, cfg: PosesConfig) -> Estimate:
         info={"models": 1, "file": str(path)},
     )
     rec = poses.reconstruction
-    if rec is not None and rec.num_points3D() and camera is poses.camera:
+    model_size = (poses.camera.width, poses.camera.height) if poses.camera else None
+    if rec is not None and rec.num_points3D() and model_size == (w, h):
         names = {i: name for name, i in ingest.index_by_name().items()}
         keep_images(rec, {name: names[i] for name, i in frame_of.items()})
         est.xyz, est.rgb = reconstruction_points(rec)
