@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from endopipe.stages.camera import Camera
-from endopipe.stages.depth.support import consistent_views
+from endopipe.stages.depth.support import consistent_views, past_fitted_lens
 
 CAMERA = Camera(width=80, height=64, fx=60.0, fy=60.0, cx=39.5, cy=31.5)
 WALL_Z = 10.0
@@ -42,3 +42,13 @@ def test_no_depth_has_no_views_and_points_out_of_view_count_for_nothing() -> Non
     assert counts[0].dtype == np.uint8 and np.all(counts[0][:, :10] == 0)
     # 4 units to the side at 10 deep is 24 px: frame 0's left part is in no other view
     assert np.all(counts[0][:, 10:20] == 0) and np.all(counts[0][:, -10:] >= 1)
+
+
+def test_pixels_past_the_lens_fitted_radius_are_flagged_at_the_maps_size() -> None:
+    assert past_fitted_lens(CAMERA, None, CAMERA.width) is None  # a given lens: nothing
+    # fitted within 20 px of an image twice as wide: 10 px here
+    past = past_fitted_lens(CAMERA, 20.0, 2 * CAMERA.width)
+    v, u = np.nonzero(past)
+    assert past.shape == (CAMERA.height, CAMERA.width)
+    assert np.hypot(u - CAMERA.cx, v - CAMERA.cy).min() > 10.0
+    assert not past[31, 39 + 9] and past[31, 39 + 11]

@@ -180,6 +180,9 @@ def _plan(quick: bool) -> BenchPlan:
                 given_lens=False,
                 sets=["poses.camera_model=OPENCV"],
             ),
+            # a 140-degree fisheye, the lens estimated as any scope's is (SIMPLE_RADIAL, which
+            # bends back inside it: re-fitted as a fisheye, poses.unfold_lens)
+            BenchCase(**COLON, name="colon_fisheye_est", lens="fisheye", given_lens=False),
         ],
         variants=list(VARIANTS),
         sets=[],

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from endopipe.pipeline.stage import Stage, StageContext, write_json
-from endopipe.stages.camera import lens_valid_mask
+from endopipe.stages.camera import Camera, lens_valid_mask
 from endopipe.stages.centerline.view import CenterlineView
 from endopipe.stages.depth.config import DepthConfig
 from endopipe.stages.depth.evaluate import (
@@ -27,7 +27,7 @@ from endopipe.stages.depth.evaluate import (
 from endopipe.stages.depth.preview import write_preview
 from endopipe.stages.depth.renderer import FieldSight
 from endopipe.stages.depth.summary import DepthSummary
-from endopipe.stages.depth.support import write_support
+from endopipe.stages.depth.support import past_fitted_lens, write_support
 from endopipe.stages.depth.view import (
     DEPTH_DIR,
     METRICS_FILE,
@@ -50,7 +50,7 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    version = 7  # 7: views and inferred maps
+    version = 8  # 8: the pixels past an estimated lens's fitted radius are inferred
     Config = DepthConfig
 
     @classmethod
@@ -66,7 +66,7 @@ class Depth(Stage):
         sight = FieldSight.open(cfg, ingest, poses, centerline, nerf)
         renderer, k, c2w, bake_s = sight.render, sight.camera, sight.c2w, sight.bake_s
         heldout = set(getattr(sight.model, "meta", {}).get("heldout", []))
-        beyond_lens = ~lens_valid_mask(k)  # no ray there: no depth (poses logs how much)
+        beyond_lens = unseen_pixels(k, ingest)  # no ray, or outside the scope: no depth
         for sub in (DEPTH_DIR, OPACITY_DIR):
             (ctx.out / sub).mkdir()
         depths, rgbs, times = {}, {}, []
@@ -90,7 +90,8 @@ class Depth(Stage):
                     rgbs[i] = out["rgb"]
                 advance(info=f"{1000 * times[-1]:.0f} ms/frame")
         png_scale = write_depth_pngs(ctx.out / DEPTH_DIR, depths)
-        support = write_support(ctx.out, cfg, ingest, depths, c2w, k, beyond_lens)
+        extrapolated = past_fitted_lens(k, poses.file.fitted_radius_px, poses.file.width)
+        support = write_support(ctx.out, cfg, ingest, depths, c2w, k, beyond_lens, extrapolated)
         gt = ingest.ground_truth_for_scores(ctx.log)
         gt_depths = ground_truth_depths(gt, ingest, list(depths))
         metrics = evaluate(gt, ingest, depths, gt_depths, rgbs, principal=(k.cx, k.cy))
@@ -121,8 +122,9 @@ class Depth(Stage):
             ctx.log(
                 f"views: {support.seen_again / pixels:.1%} of the lens's pixels have a depth "
                 f"{cfg.seen_again_views} other views agree with, {support.one_view / pixels:.1%} "
-                f"one no other view confirms; {support.inferred / pixels:.1%} lie under their "
-                "frame's own mask (inferred)"
+                f"one no other view confirms; {support.inferred / pixels:.1%} are inferred "
+                f"(under their frame's own mask, or {support.extrapolated / pixels:.1%} past the "
+                "radius the estimated lens was fitted within)"
             )
         return DepthSummary(
             frames=len(depths),
@@ -141,10 +143,24 @@ class Depth(Stage):
             seen_again_share=support.seen_again / pixels if support else None,
             one_view_share=support.one_view / pixels if support else None,
             inferred_share=support.inferred / pixels if support else None,
+            extrapolated_share=support.extrapolated / pixels if support else None,
             baselines=metrics.get("baselines"),
             heldout_psnr=metrics.get("heldout_psnr"),
             heldout_ssim=metrics.get("heldout_ssim"),
         )
+
+
+def unseen_pixels(k: Camera, ingest: IngestView) -> np.ndarray:
+    """(H, W) bool: the pixels that get no depth whatever the field holds: those the lens model
+    gives no ray (poses logs how many) and those outside the scope's field of view (its black
+    surround, which a lens that reaches every pixel would otherwise cast into the scene)."""
+    unseen = ~lens_valid_mask(k)
+    fov = ingest.fov()
+    if fov is not None:
+        if fov.shape != unseen.shape:
+            fov = cv2.resize(fov, (k.width, k.height), interpolation=cv2.INTER_NEAREST)
+        unseen |= fov <= 127
+    return unseen
 
 
 def write_depth_pngs(folder: Path, depths: dict[int, np.ndarray]) -> float:

@@ -22,10 +22,12 @@ class DepthSummary(Summary):
     unknown_share: float | None = None  # share of the lens's pixels with no depth
     hazy_share: float | None = None  # ... of which the field spread over no one surface
     #: shares of the lens's pixels whose depth `seen_again_views` other views agree with, whose
-    #: depth no other view confirms, and whose depth lies under the frame's own mask (inferred)
+    #: depth no other view confirms, and whose depth is inferred: under the frame's own mask,
+    #: or past the radius an estimated lens was fitted within (`extrapolated_share` of them)
     seen_again_share: float | None = None
     one_view_share: float | None = None
     inferred_share: float | None = None
+    extrapolated_share: float | None = None
     #: the guesses' scores on our pixels (metrics.json `baselines`): radial, brightness
     baselines: dict[str, ProtocolScores] | None = None
     heldout_psnr: float | None = None

@@ -9,7 +9,9 @@ see its surface: the count says how often a surface was observed, not how accura
 is (on C3VD the error is the same at every count and parallax; on the bench colon the few
 pixels fewer than two other views see are 4x worse). Pixels the frame's own mask left out (specular
 highlights, masked tools) get the surface under them from the field, fitted to the pixels
-around them and to other frames: they are flagged as inferred, never counted as observed.
+around them and to other frames: they are flagged as inferred, never counted as observed. So
+are the pixels past the radius where an estimated lens was fitted to tracked features: their
+rays come from the lens model extrapolated (C3VD's outer ring).
 """
 
 from __future__ import annotations
@@ -73,7 +75,19 @@ class Support:
     seen_again: int
     one_view: int
     inferred: int
+    extrapolated: int  # of `inferred`: past the radius the lens was fitted within
     seen_again_maps: dict[int, np.ndarray]
+
+
+def past_fitted_lens(camera: Camera, fitted_radius_px: float | None, fitted_width: int):
+    """(H, W) bool: the pixels farther from the principal point than the radius within which
+    the lens was fitted (given in pixels of an image `fitted_width` wide); None when the lens
+    was given."""
+    if fitted_radius_px is None:
+        return None
+    u, v = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
+    radius = fitted_radius_px * camera.width / fitted_width
+    return np.hypot(u - camera.cx, v - camera.cy) > radius
 
 
 def write_support(
@@ -84,6 +98,7 @@ def write_support(
     c2w: dict[int, np.ndarray],
     camera: Camera,
     beyond_lens: np.ndarray,
+    extrapolated: np.ndarray | None = None,
 ) -> Support | None:
     """views/<i>.npy (uint8 agreeing views) and inferred/<i>.npy (bool) per frame; None when
     depth.support_frames is 0."""
@@ -93,7 +108,7 @@ def write_support(
     for sub in (VIEWS_DIR, INFERRED_DIR):
         (out / sub).mkdir(exist_ok=True)
     fov = ingest.fov()
-    seen = one = inferred_px = 0
+    seen = one = inferred_px = extrapolated_px = 0
     maps = {}
     for i, d in depths.items():
         has = (d > 0) & ~beyond_lens
@@ -101,10 +116,13 @@ def write_support(
         inferred = has & (ingest.mask(i) <= 127)
         if fov is not None:
             inferred &= fov > 127
+        if extrapolated is not None:
+            extrapolated_px += int((has & extrapolated).sum())
+            inferred |= has & extrapolated
         np.save(out / VIEWS_DIR / frame_file(i), views)
         np.save(out / INFERRED_DIR / frame_file(i), inferred)
         maps[i] = views >= cfg.seen_again_views
         seen += int(maps[i].sum())
         one += int((has & (counts[i] == 0)).sum())
         inferred_px += int(inferred.sum())
-    return Support(seen, one, inferred_px, maps)
+    return Support(seen, one, inferred_px, extrapolated_px, maps)

@@ -205,14 +205,18 @@ def _result(
     merge: str,
     merged: int,
 ) -> SfmResult:
-    index_of = ingest.index_by_name()
     camera, model = camera_from_pycolmap(next(iter(rec.cameras.values())))
-    c2w = {
+    c2w = frame_poses(rec, ingest.index_by_name())
+    return SfmResult(mapper, rec, camera, model, c2w, sizes, merge, merged)
+
+
+def frame_poses(rec: pycolmap.Reconstruction, index_of: dict[str, int]) -> dict[int, np.ndarray]:
+    """endopipe frame index -> camera-to-world 4x4 of every posed image of `rec`."""
+    return {
         index_of[image.name]: c2w_from_cam_from_world(image.cam_from_world().matrix())
         for image in rec.images.values()
         if image.has_pose and image.name in index_of
     }
-    return SfmResult(mapper, rec, camera, model, c2w, sizes, merge, merged)
 
 
 def triangulate_known(

@@ -163,6 +163,13 @@ class PosesConfig(StageConfig):
         "SIMPLE_RADIAL",
         description="COLMAP camera model estimated when the intrinsics are unknown.",
     )
+    unfold_lens: bool = Field(
+        True,
+        description="An estimated lens that bends back inside the field of view (SIMPLE_RADIAL "
+        "through a wide scope) is re-fitted as a one-parameter fisheye (FOV) by bundle "
+        "adjustment and written as OPENCV_FISHEYE: every pixel gets a ray, and the outer angles "
+        "are not squeezed. Known intrinsics are not touched.",
+    )
     focal_factor: float = Field(
         0.5,
         gt=0,

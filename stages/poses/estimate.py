@@ -30,3 +30,6 @@ class Estimate:
     intrinsics_kind: str = "fixed"
     alternatives: dict[str, dict[int, np.ndarray]] = field(default_factory=dict)  # not kept
     verdict: Any = None  # PoseVerdict of SfM poses (None: not assessed, e.g. ground truth)
+    #: an estimated lens: how far from the principal point (px) the features it was fitted to
+    #: reach (None: the lens was given)
+    fitted_radius_px: float | None = None

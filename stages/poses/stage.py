@@ -51,6 +51,7 @@ from endopipe.stages.poses.view import CamerasFile, PosesView
 
 if TYPE_CHECKING:
     from endopipe.stages.poses.colmap_sfm import SfmResult
+    from endopipe.stages.poses.lens_refit import Refit
 
 __all__ = ["Poses", "PosesConfig", "PosesSummary"]
 
@@ -60,7 +61,7 @@ class Poses(Stage):
 
     name = "poses"
     needs = ("ingest",)
-    version = 3  # 3: mapper auto asks the incremental mapper only when the global one is doubtful
+    version = 4  # 4: an estimated lens that bends back re-fitted as a fisheye
     Config = PosesConfig
 
     @classmethod
@@ -144,6 +145,7 @@ class Poses(Stage):
             mappers_disagreement_pct=verdict.disagreement_pct,
             depth_drift=verdict.depth_drift,
             lens_reach=lens_reach(k, ingest),
+            fitted_radius_px=est.fitted_radius_px,
         )
         ctx.log(
             f"registered {summary.registered}/{n} frames ({100 * summary.registered_fraction:.0f}%)"
@@ -161,8 +163,8 @@ class Poses(Stage):
                 f"field of view and reaches {summary.lens_reach:.1%} of it; the rest gets no "
                 "ray, so no depth"
                 + (
-                    " (--set poses.camera_model=RADIAL reaches further, but no feature was "
-                    "tracked there to fit it by: on C3VD the depth got worse everywhere)"
+                    " (poses.unfold_lens re-fits an estimated lens as a fisheye that reaches "
+                    "every pixel)"
                     if summary.intrinsics == "estimated"
                     else ""
                 )
@@ -246,7 +248,9 @@ def clean_scratch(scratch: Path, keep_database: bool, work: tuple[str, ...]) -> 
 
 
 def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Estimate:
-    from endopipe.stages.poses.colmap_sfm import run_sfm  # pycolmap is heavy: only when used
+    # pycolmap is heavy: only when used
+    from endopipe.stages.poses.colmap_sfm import frame_poses, run_sfm
+    from endopipe.stages.poses.lens_refit import fitted_radius_px
 
     known = ingest.intrinsics
     scratch = ctx.out / "colmap"
@@ -282,14 +286,26 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Esti
             "(poses.mapper=both runs it too)"
         )
     sfm = by_mapper[verdict.mapper]
-    rec = sfm.reconstruction
+    rec, camera, model, c2w = sfm.reconstruction, sfm.camera, sfm.colmap_model, sfm.c2w
     fixed = known is not None and not cfg.refine_known_intrinsics
+    refit_info: dict[str, str] = {}
+    if known is None and cfg.unfold_lens and lens_folds(camera, ingest):
+        refit = unfold(rec, cfg, ctx)
+        if refit is not None:
+            rec, camera, model = refit.reconstruction, refit.camera, refit.colmap_model
+            c2w = frame_poses(rec, index_of)
+            refit_info["lens_refit"] = (
+                f"{sfm.colmap_model} bent back inside the field of view: FOV lens (w "
+                f"{refit.omega:.3f}) written as {model}, reprojection "
+                f"{refit.reprojection_before_px:.3f} -> {refit.reprojection_after_px:.3f} px, "
+                f"the farthest pixel at {refit.widest_deg:.1f} deg"
+            )
     xyz, rgb = reconstruction_points(rec)
     timings = {k: round(v, 2) for r in results for k, v in r.timings.items()}
     return Estimate(
-        camera=known if fixed else sfm.camera,
-        colmap_model=sfm.colmap_model,
-        c2w=sfm.c2w,
+        camera=known if fixed else camera,
+        colmap_model=model,
+        c2w=c2w,
         xyz=xyz,
         rgb=rgb,
         reconstruction=rec,
@@ -306,8 +322,36 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Esti
             "mean_track_length": float(rec.compute_mean_track_length()),
             "mean_points_per_frame": float(rec.compute_mean_observations_per_reg_image()),
             "timings": timings,
+            **refit_info,
         },
+        fitted_radius_px=None if known is not None else fitted_radius_px(rec),
     )
+
+
+def lens_folds(camera: Camera, ingest: IngestView) -> bool:
+    """Whether the lens model leaves some pixel of the field of view (the whole image without a
+    mask) without a ray."""
+    reach = lens_reach(camera, ingest)
+    if reach is None:
+        return not bool(lens_valid_mask(camera).all())
+    return reach < 1.0
+
+
+def unfold(rec, cfg: PosesConfig, ctx: StageContext) -> Refit | None:
+    """The model with its lens re-fitted as a fisheye, or None (said in the log) when it cannot
+    be."""
+    from endopipe.stages.poses.lens_refit import refit_as_fisheye
+
+    refit = refit_as_fisheye(rec, cfg.refine_principal_point)
+    if refit is None:
+        ctx.log("lens: bends back inside the field of view and could not be re-fitted as a fisheye")
+    else:
+        ctx.log(
+            f"lens: re-fitted as a fisheye (FOV, w {refit.omega:.3f}): every pixel has a ray, "
+            f"the farthest at {refit.widest_deg:.1f} deg; reprojection "
+            f"{refit.reprojection_before_px:.3f} -> {refit.reprojection_after_px:.3f} px"
+        )
+    return refit
 
 
 #: Fewer triangulated points than this are noise, not a wall: keep none.
@@ -402,6 +446,10 @@ def from_file(ingest: IngestView, cfg: PosesConfig) -> Estimate:
         keep_images(rec, {name: names[i] for name, i in frame_of.items()})
         est.xyz, est.rgb = reconstruction_points(rec)
         est.reconstruction = rec
+        if kind == "from file":  # the lens may have been estimated: where its tracks reach
+            from endopipe.stages.poses.lens_refit import fitted_radius_px
+
+            est.fitted_radius_px = fitted_radius_px(rec)
     return est
 
 
@@ -480,6 +528,7 @@ def write_outputs(
         colmap_model=est.colmap_model,
         metric=metric,
         source=source,
+        fitted_radius_px=est.fitted_radius_px,
     )
     write_json(out / "cameras.json", cams.model_dump(mode="json"))
     names = {i: name for name, i in ingest.index_by_name().items()}

@@ -50,3 +50,7 @@ class PosesSummary(Summary):
     others_ate_percent: dict[str, float] = {}
     #: share of the field of view's pixels the lens model gives a ray (the rest: no depth)
     lens_reach: float | None = None
+    #: an estimated lens that bent back inside the field of view, re-fitted as a fisheye: how
+    lens_refit: str | None = None
+    #: an estimated lens: how far from the principal point (px) its features reach
+    fitted_radius_px: float | None = None

@@ -48,6 +48,11 @@ class CamerasFile(BaseModel):
     metric: bool = False
     units: str = "colmap"
     source: str = "colmap"
+    fitted_radius_px: float | None = Field(
+        None,
+        description="An estimated lens: how far from the principal point (px) the tracked "
+        "features it was fitted to reach; past it the lens is extrapolated. None: given.",
+    )
     frames: list[FramePose]
 
     @model_validator(mode="after")
@@ -77,6 +82,7 @@ class CamerasFile(BaseModel):
         colmap_model: str | None = None,
         metric: bool,
         source: str,
+        fitted_radius_px: float | None = None,
     ) -> CamerasFile:
         """`colmap_model`: the COLMAP model to give the camera as (default: the smallest that
         holds its lens)."""
@@ -93,6 +99,7 @@ class CamerasFile(BaseModel):
             metric=metric,
             units="mm" if metric else "colmap",
             source=source,
+            fitted_radius_px=fitted_radius_px,
             frames=[
                 FramePose(
                     index=i,

@@ -45,7 +45,13 @@ def support_line(s: DepthSummary, dm: DepthMetrics | None) -> str | None:
     line = (
         f"{100 * s.seen_again_share:.1f}% of the lens's pixels have a depth nearby views agree "
         f"with, {100 * (s.one_view_share or 0):.1f}% one no other view confirms; "
-        f"{100 * (s.inferred_share or 0):.1f}% lie under their frame's own mask (inferred)"
+        f"{100 * (s.inferred_share or 0):.1f}% are inferred (under their frame's own mask"
+        + (
+            f", or {100 * s.extrapolated_share:.1f}% past the radius the estimated lens was "
+            "fitted within)"
+            if s.extrapolated_share
+            else ")"
+        )
     )
     by = dm.by_support if dm is not None else None
     if by and "seen_again" in by and "rest" in by:

@@ -1,0 +1,154 @@
+"""A self-calibrated lens that bends back inside the field of view, re-fitted as a fisheye.
+
+Why: COLMAP self-calibrates SIMPLE_RADIAL, r_d = r (1 + k r^2). Through a wide scope the fit
+takes k < 0, and that polynomial stops growing before the edge of the image: the outer pixels
+get no ray (C3VD: 5.2% of the octagon) and the angles before the fold come out too narrow (the
+bench colon through a 140-degree fisheye: 46.9 degrees at 170 px from the centre, 57.3 true; the
+tube then fits its SfM points worse than a closed cavity does). The one-parameter FOV lens
+(Devernay and Faugeras: r_d = atan(2 r tan(w / 2)) / w) has a fisheye's shape and never folds.
+Started from the estimated lens and bundle-adjusted on the same tracks, it keeps their
+reprojection error and puts that angle at 54.4 degrees. endopipe's `Camera` speaks OpenCV's
+fisheye, so the FOV lens is written as the k1..k4 that match it over the whole image, and the
+model is adjusted once more with that lens fixed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2  # noqa: F401  (must precede pycolmap: see endopipe.stages)
+import numpy as np
+import pycolmap
+from scipy.optimize import least_squares
+
+from endopipe.stages.camera import Camera
+from endopipe.stages.io.colmap_model import camera_from_pycolmap
+
+#: Angles the FOV lens is first fitted over (degrees from the optical axis, within the tracks).
+START_DEG = (0.5, 45.0)
+#: The OpenCV fisheye must match the FOV lens this well (px) over the image, else no refit.
+MATCH_PX = 0.05
+
+
+@dataclass
+class Refit:
+    """The re-fitted model and lens, and what the log and summary say about them."""
+
+    reconstruction: pycolmap.Reconstruction
+    camera: Camera
+    colmap_model: str
+    omega: float
+    reprojection_before_px: float
+    reprojection_after_px: float
+    widest_deg: float  # the ray angle of the image's farthest pixel from the principal point
+
+
+def fitted_radius_px(rec: pycolmap.Reconstruction) -> float | None:
+    """How far from the principal point (px) the tracked features reach: the 99.9th percentile
+    of every observation's distance. A lens estimated from them is fitted within it and
+    extrapolated past it. None without observations or with several cameras."""
+    if len(rec.cameras) != 1:
+        return None
+    camera = next(iter(rec.cameras.values()))
+    centre = np.array([camera.principal_point_x, camera.principal_point_y])
+    xy = [p.xy for image in rec.images.values() for p in image.points2D if p.has_point3D()]
+    if not xy:
+        return None
+    return float(np.percentile(np.linalg.norm(np.asarray(xy) - centre, axis=1), 99.9))
+
+
+def refit_as_fisheye(rec: pycolmap.Reconstruction, refine_principal_point: bool) -> Refit | None:
+    """A copy of `rec` whose one camera is re-fitted as a FOV lens written as OpenCV's fisheye,
+    its poses and points adjusted with it; None when `rec` has several cameras or the fisheye
+    cannot hold the FOV lens."""
+    if len(rec.cameras) != 1:
+        return None
+    cam_id, before = next(iter(rec.cameras.items()))
+    work = pycolmap.Reconstruction(rec)
+    work.cameras[cam_id] = _fov_like(before)
+    _adjust(work, refine_intrinsics=True, refine_principal_point=refine_principal_point)
+    fitted = work.cameras[cam_id]
+    omega = float(fitted.params[4])
+    fisheye = _as_opencv_fisheye(fitted)
+    if fisheye is None:
+        return None
+    work.cameras[cam_id], widest = fisheye
+    _adjust(work, refine_intrinsics=False, refine_principal_point=False)
+    camera, model = camera_from_pycolmap(work.cameras[cam_id])
+    return Refit(
+        reconstruction=work,
+        camera=camera,
+        colmap_model=model,
+        omega=omega,
+        reprojection_before_px=float(rec.compute_mean_reprojection_error()),
+        reprojection_after_px=float(work.compute_mean_reprojection_error()),
+        widest_deg=widest,
+    )
+
+
+def _fov_like(camera: pycolmap.Camera) -> pycolmap.Camera:
+    """A FOV camera that matches `camera` along a radius out to START_DEG[1] (where features are
+    tracked), its principal point kept."""
+    theta = np.radians(np.linspace(*START_DEG, 90))
+    rays = np.stack([np.tan(theta), np.zeros_like(theta), np.ones_like(theta)], 1)
+    target = camera.img_from_cam(rays)[:, 0]
+    f = float(camera.mean_focal_length())
+    cx, cy = camera.principal_point_x, camera.principal_point_y
+
+    def make(focal: float, omega: float) -> pycolmap.Camera:
+        return pycolmap.Camera(
+            model="FOV",
+            width=camera.width,
+            height=camera.height,
+            params=[focal, focal, cx, cy, omega],
+        )
+
+    def residual(q: np.ndarray) -> np.ndarray:
+        return np.nan_to_num(make(*q).img_from_cam(rays)[:, 0] - target, nan=1e3)
+
+    q = least_squares(residual, [f, 1.0], bounds=([1e-3, 1e-3], [np.inf, 3.0])).x
+    out = make(*q)
+    out.camera_id = camera.camera_id
+    return out
+
+
+def _as_opencv_fisheye(camera: pycolmap.Camera) -> tuple[pycolmap.Camera, float] | None:
+    """OpenCV's fisheye (k1..k4) matching `camera` out to the image's farthest pixel, with
+    that pixel's ray angle (degrees); None when no fit is within MATCH_PX."""
+    cx, cy = camera.principal_point_x, camera.principal_point_y
+    far = np.hypot(max(cx, camera.width - cx), max(cy, camera.height - cy)) + 1.0
+    radius = np.linspace(1.0, far, 300)
+    fx, fy = camera.focal_length_x, camera.focal_length_y
+    # along x, in units of fx (the FOV model's two focal lengths scale the axes alike)
+    rays = camera.cam_from_img(np.stack([cx + radius, np.full_like(radius, cy)], 1))
+    theta = np.arctan(np.abs(rays[:, 0]))
+    if not np.isfinite(theta).all() or np.any(np.diff(theta) <= 0):
+        return None
+
+    def residual(p: np.ndarray) -> np.ndarray:
+        t2 = theta * theta
+        poly = 1 + t2 * (p[1] + t2 * (p[2] + t2 * (p[3] + t2 * p[4])))
+        return p[0] * theta * poly - radius
+
+    p = least_squares(residual, [fx, 0.0, 0.0, 0.0, 0.0]).x
+    if np.abs(residual(p)).max() > MATCH_PX:
+        return None
+    out = pycolmap.Camera(
+        camera_id=camera.camera_id,
+        model="OPENCV_FISHEYE",
+        width=camera.width,
+        height=camera.height,
+        params=[p[0], p[0] * fy / fx, cx, cy, *p[1:]],
+    )
+    return out, float(np.degrees(theta[-1]))
+
+
+def _adjust(
+    rec: pycolmap.Reconstruction, refine_intrinsics: bool, refine_principal_point: bool
+) -> None:
+    """One global bundle adjustment of `rec` (its poses and points; the lens when asked)."""
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = refine_intrinsics
+    options.refine_extra_params = refine_intrinsics
+    options.refine_principal_point = refine_intrinsics and refine_principal_point
+    pycolmap.bundle_adjustment(rec, options)
