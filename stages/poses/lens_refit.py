@@ -87,11 +87,15 @@ def refit_as_fisheye(rec: pycolmap.Reconstruction, refine_principal_point: bool)
 
 
 def _fov_like(camera: pycolmap.Camera) -> pycolmap.Camera:
-    """A FOV camera that matches `camera` along a radius out to START_DEG[1] (where features are
-    tracked), its principal point kept."""
+    """A FOV camera that matches `camera` along a radius out to START_DEG[1] or to where its
+    lens bends back, whichever is nearer (where features are tracked), its principal point
+    kept."""
     theta = np.radians(np.linspace(*START_DEG, 90))
     rays = np.stack([np.tan(theta), np.zeros_like(theta), np.ones_like(theta)], 1)
     target = camera.img_from_cam(rays)[:, 0]
+    grows = np.concatenate([[True], np.diff(target) > 0])
+    upto = int(np.argmin(grows)) if not grows.all() else len(target)  # before any fold
+    rays, target = rays[:upto], target[:upto]
     f = float(camera.mean_focal_length())
     cx, cy = camera.principal_point_x, camera.principal_point_y
 
