@@ -76,9 +76,11 @@ def main() -> None:
             within["rho within"].append(scores["spearman"])
             far = valid & ~near
             if far.sum() >= 10:
-                within["past"].append(float(np.mean(np.abs(scale * d[far] + shift - g[far]) / g[far])))
+                aligned = scale * d[far] + shift
+                within["past"].append(float(np.mean(np.abs(aligned - g[far]) / g[far])))
     points = sfm_points_by_band(case, ingest, poses, truth, inside, k)
-    print(f"{'band':>10} {'pixels':>7} {'SSI-AbsRel':>10} {'error share':>11} {'signed':>7}   SfM points: n, |err|, signed")
+    head = f"{'band':>10} {'pixels':>7} {'SSI-AbsRel':>10} {'error share':>11} {'signed':>7}"
+    print(head + "   SfM points: n, |err|, signed")
     for j in range(n):
         if not count[j]:
             continue
@@ -86,11 +88,13 @@ def main() -> None:
         sfm = f"{len(p):6d} {np.median(np.abs(p)):.3f} {np.median(p):+.3f}" if len(p) else "     -"
         print(
             f"{BANDS[j]:.1f}-{BANDS[j + 1]:.1f} {count[j] / count.sum():7.3f} "
-            f"{err[j] / count[j]:10.3f} {err[j] / err.sum():11.3f} {np.mean(signed[j]):+7.3f}   {sfm}"
+            f"{err[j] / count[j]:10.3f} {err[j] / err.sum():11.3f} "
+            f"{np.mean(signed[j]):+7.3f}   {sfm}"
         )
     if within["within"]:
         print(
-            f"within the fitted radius ({fitted:.0f} px): SSI-AbsRel {np.mean(within['within']):.4f}, "
+            f"within the fitted radius ({fitted:.0f} px): SSI-AbsRel "
+            f"{np.mean(within['within']):.4f}, "
             f"Spearman {np.mean(within['rho within']):.4f}; past it: SSI-AbsRel "
             f"{np.mean(within['past']) if within['past'] else float('nan'):.4f} (the frame's fit)"
         )

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from endopipe.stages.camera import Camera
-from endopipe.stages.depth.support import consistent_views, past_fitted_lens
+from endopipe.stages.depth.support import consistent_views
+from endopipe.stages.poses.view import past_fitted_radius
 
 CAMERA = Camera(width=80, height=64, fx=60.0, fy=60.0, cx=39.5, cy=31.5)
 WALL_Z = 10.0
@@ -45,9 +46,10 @@ def test_no_depth_has_no_views_and_points_out_of_view_count_for_nothing() -> Non
 
 
 def test_pixels_past_the_lens_fitted_radius_are_flagged_at_the_maps_size() -> None:
-    assert past_fitted_lens(CAMERA, None, CAMERA.width) is None  # a given lens: nothing
-    # fitted within 20 px of an image twice as wide: 10 px here
-    past = past_fitted_lens(CAMERA, 20.0, 2 * CAMERA.width)
+    assert past_fitted_radius(CAMERA, None, CAMERA.width) is None  # a given lens: nothing
+    # fitted within 20 px of an image twice as wide: 10 px here (and 8 px for a share of 0.8)
+    assert past_fitted_radius(CAMERA, 20.0, 2 * CAMERA.width, 0.8)[31, 39 + 9]
+    past = past_fitted_radius(CAMERA, 20.0, 2 * CAMERA.width)
     v, u = np.nonzero(past)
     assert past.shape == (CAMERA.height, CAMERA.width)
     assert np.hypot(u - CAMERA.cx, v - CAMERA.cy).min() > 10.0

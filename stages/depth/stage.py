@@ -27,7 +27,7 @@ from endopipe.stages.depth.evaluate import (
 from endopipe.stages.depth.preview import write_preview
 from endopipe.stages.depth.renderer import FieldSight
 from endopipe.stages.depth.summary import DepthSummary
-from endopipe.stages.depth.support import past_fitted_lens, write_support
+from endopipe.stages.depth.support import write_support
 from endopipe.stages.depth.view import (
     DEPTH_DIR,
     METRICS_FILE,
@@ -90,7 +90,7 @@ class Depth(Stage):
                     rgbs[i] = out["rgb"]
                 advance(info=f"{1000 * times[-1]:.0f} ms/frame")
         png_scale = write_depth_pngs(ctx.out / DEPTH_DIR, depths)
-        extrapolated = past_fitted_lens(k, poses.file.fitted_radius_px, poses.file.width)
+        extrapolated = poses.past_fitted_radius(k)
         support = write_support(ctx.out, cfg, ingest, depths, c2w, k, beyond_lens, extrapolated)
         gt = ingest.ground_truth_for_scores(ctx.log)
         gt_depths = ground_truth_depths(gt, ingest, list(depths))

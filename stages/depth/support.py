@@ -79,17 +79,6 @@ class Support:
     seen_again_maps: dict[int, np.ndarray]
 
 
-def past_fitted_lens(camera: Camera, fitted_radius_px: float | None, fitted_width: int):
-    """(H, W) bool: the pixels farther from the principal point than the radius within which
-    the lens was fitted (given in pixels of an image `fitted_width` wide); None when the lens
-    was given."""
-    if fitted_radius_px is None:
-        return None
-    u, v = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
-    radius = fitted_radius_px * camera.width / fitted_width
-    return np.hypot(u - camera.cx, v - camera.cy) > radius
-
-
 def write_support(
     out: Path,
     cfg: DepthConfig,

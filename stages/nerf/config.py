@@ -382,6 +382,15 @@ class LossConfig(_Section):
         "AbsRel 0.0320-0.0328, Chamfer 3.82-4.10%, off-seen 9.7-11.3% against 0.0340-0.0344, "
         "4.27-4.56%, 11.3-12.0% without; C3VD and the bench cavity the same.",
     )
+    sparse_lens_share: float = Field(
+        0.9,
+        gt=0,
+        description="With an estimated lens: follow the depth of the SfM points seen within "
+        "this share of the radius its features reached (poses' fitted_radius_px). Near that "
+        "edge the tracks pin the lens least, and the points' depth carries its error (C3VD's "
+        "outer ring: 10-56% too far against the panel). C3VD 0.973 / 0.105 at 0.9, 0.972 / "
+        "0.109 at 0.8, against 0.969 / 0.115 at 1 (all); a given lens: every point.",
+    )
     sparse_min_angle: float = Field(
         0.0,
         ge=0,

@@ -161,8 +161,16 @@ def load_sparse_depth(
         lc.sparse_max_error,
         lc.sparse_min_angle,
         device,
-        usable=lens_valid_mask(k.scaled(ingest.width, ingest.height)),
+        usable=sparse_usable(poses, k.scaled(ingest.width, ingest.height), lc.sparse_lens_share),
     )
+
+
+def sparse_usable(poses, camera: Camera, share: float) -> np.ndarray:
+    """The pixels whose SfM points' depth the field may follow: those the lens model reaches,
+    within `share` of the radius an estimated lens was fitted within."""
+    usable = lens_valid_mask(camera)
+    past = poses.past_fitted_radius(camera, share)
+    return usable if past is None else usable & ~past
 
 
 def sparse_depth_line(sparse: SparseDepth | None, min_angle: float) -> str:

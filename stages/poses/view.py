@@ -125,6 +125,19 @@ class SparseObservations:
     angle: np.ndarray  # (N,) widest angle between two of the point's viewing rays (degrees)
 
 
+def past_fitted_radius(
+    camera: Camera, fitted_radius_px: float | None, fitted_width: int, share: float = 1.0
+) -> np.ndarray | None:
+    """(H, W) bool for `camera`'s image: the pixels farther from its principal point than `share`
+    of the radius an estimated lens was fitted within (given in pixels of an image
+    `fitted_width` wide); None when the lens was given."""
+    if fitted_radius_px is None:
+        return None
+    u, v = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
+    radius = share * fitted_radius_px * camera.width / fitted_width
+    return np.hypot(u - camera.cx, v - camera.cy) > radius
+
+
 class PosesView:
     """Typed access to 02_poses: the camera (with its lens), registered frames' c2w, sparse
     points."""
@@ -161,6 +174,12 @@ class PosesView:
     def sparse_dir(self) -> Path:
         """sparse/: the COLMAP model with its tracks (absent when the poses came without)."""
         return self.folder / "sparse"
+
+    def past_fitted_radius(self, camera: Camera, share: float = 1.0) -> np.ndarray | None:
+        """The pixels of `camera`'s image (this camera at any size) past `share` of the radius
+        the estimated lens was fitted within: its rays there are the lens extrapolated. None
+        when the lens was given."""
+        return past_fitted_radius(camera, self.file.fitted_radius_px, self.file.width, share)
 
     def verdict(self) -> PoseVerdict | None:
         """verdict.json: ok / doubtful for the sequence and each frame, with the reasons (None
