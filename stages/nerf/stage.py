@@ -34,6 +34,7 @@ from endopipe.stages.nerf.sparse_depth import SparseDepth, sparse_depth_targets
 from endopipe.stages.nerf.summary import NerfSummary
 from endopipe.stages.nerf.train import CHECKPOINT, Trainer, auto_threads
 from endopipe.stages.nerf.view import HELDOUT_RGB_DIR, MODEL_FILE, NerfView
+from endopipe.stages.poses.view import PosesView
 
 
 def load_prior(centerline) -> object:
@@ -165,7 +166,7 @@ def load_sparse_depth(
     )
 
 
-def sparse_usable(poses, camera: Camera, share: float) -> np.ndarray:
+def sparse_usable(poses: PosesView, camera: Camera, share: float) -> np.ndarray:
     """The pixels whose SfM points' depth the field may follow: those the lens model reaches,
     within `share` of the radius an estimated lens was fitted within."""
     usable = lens_valid_mask(camera)

@@ -26,6 +26,8 @@ from endopipe.stages.io.colmap_model import camera_from_pycolmap
 
 #: Angles the FOV lens is first fitted over (degrees from the optical axis, within the tracks).
 START_DEG = (0.5, 45.0)
+#: Fewer angles than this before the estimate bends back: too little lens to start from.
+MIN_START_ANGLES = 10
 #: The OpenCV fisheye must match the FOV lens this well (px) over the image, else no refit.
 MATCH_PX = 0.05
 
@@ -64,8 +66,11 @@ def refit_as_fisheye(rec: pycolmap.Reconstruction, refine_principal_point: bool)
     if len(rec.cameras) != 1:
         return None
     cam_id, before = next(iter(rec.cameras.items()))
+    start = _fov_like(before)
+    if start is None:
+        return None
     work = pycolmap.Reconstruction(rec)
-    work.cameras[cam_id] = _fov_like(before)
+    work.cameras[cam_id] = start
     _adjust(work, refine_intrinsics=True, refine_principal_point=refine_principal_point)
     fitted = work.cameras[cam_id]
     omega = float(fitted.params[4])
@@ -86,15 +91,17 @@ def refit_as_fisheye(rec: pycolmap.Reconstruction, refine_principal_point: bool)
     )
 
 
-def _fov_like(camera: pycolmap.Camera) -> pycolmap.Camera:
+def _fov_like(camera: pycolmap.Camera) -> pycolmap.Camera | None:
     """A FOV camera that matches `camera` along a radius out to START_DEG[1] or to where its
     lens bends back, whichever is nearer (where features are tracked), its principal point
-    kept."""
+    kept; None when it bends back within a few degrees."""
     theta = np.radians(np.linspace(*START_DEG, 90))
     rays = np.stack([np.tan(theta), np.zeros_like(theta), np.ones_like(theta)], 1)
     target = camera.img_from_cam(rays)[:, 0]
     grows = np.concatenate([[True], np.diff(target) > 0])
     upto = int(np.argmin(grows)) if not grows.all() else len(target)  # before any fold
+    if upto < MIN_START_ANGLES:
+        return None
     rays, target = rays[:upto], target[:upto]
     f = float(camera.mean_focal_length())
     cx, cy = camera.principal_point_x, camera.principal_point_y
