@@ -44,6 +44,15 @@ class Refit:
     reprojection_after_px: float
     widest_deg: float  # the ray angle of the image's farthest pixel from the principal point
 
+    @property
+    def said(self) -> str:
+        """What happened, in words (the log and the poses summary's `lens_refit`)."""
+        return (
+            f"bent back inside the field of view: FOV lens (w {self.omega:.3f}) written as "
+            f"{self.colmap_model}, reprojection {self.reprojection_before_px:.3f} -> "
+            f"{self.reprojection_after_px:.3f} px, the farthest pixel at {self.widest_deg:.1f} deg"
+        )
+
 
 def fitted_radius_px(rec: pycolmap.Reconstruction) -> float | None:
     """How far from the principal point (px) the tracked features reach: the 99.9th percentile

@@ -292,14 +292,9 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Esti
     if known is None and cfg.unfold_lens and lens_folds(camera, ingest):
         refit = unfold(rec, cfg, ctx)
         if refit is not None:
+            refit_info["lens_refit"] = f"{model} {refit.said}"
             rec, camera, model = refit.reconstruction, refit.camera, refit.colmap_model
             c2w = frame_poses(rec, index_of)
-            refit_info["lens_refit"] = (
-                f"{sfm.colmap_model} bent back inside the field of view: FOV lens (w "
-                f"{refit.omega:.3f}) written as {model}, reprojection "
-                f"{refit.reprojection_before_px:.3f} -> {refit.reprojection_after_px:.3f} px, "
-                f"the farthest pixel at {refit.widest_deg:.1f} deg"
-            )
     xyz, rgb = reconstruction_points(rec)
     timings = {k: round(v, 2) for r in results for k, v in r.timings.items()}
     return Estimate(
@@ -346,11 +341,7 @@ def unfold(rec, cfg: PosesConfig, ctx: StageContext) -> Refit | None:
     if refit is None:
         ctx.log("lens: bends back inside the field of view and could not be re-fitted as a fisheye")
     else:
-        ctx.log(
-            f"lens: re-fitted as a fisheye (FOV, w {refit.omega:.3f}): every pixel has a ray, "
-            f"the farthest at {refit.widest_deg:.1f} deg; reprojection "
-            f"{refit.reprojection_before_px:.3f} -> {refit.reprojection_after_px:.3f} px"
-        )
+        ctx.log(f"lens: {refit.said}; every pixel has a ray")
     return refit
 
 
