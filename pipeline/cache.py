@@ -1,4 +1,4 @@
-"""Cache keys, manifests and atomic publish of a stage's folder (DESIGN §2).
+"""Cache keys, manifests and atomic publish of a stage's folder (docs/architecture.md).
 
 The key is chained (a digest of the stage's name, version, resolved config and its upstream
 keys), so the whole plan is known before anything runs.

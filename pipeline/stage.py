@@ -1,4 +1,5 @@
-"""The stage contract (DESIGN §2): a named step with upstream needs, a version and a typed config.
+"""The stage contract (docs/architecture.md): a named step with upstream needs, a version and
+a typed config.
 
 A stage writes only into `ctx.out` (a temporary folder); the runner publishes it atomically.
 """

@@ -564,7 +564,7 @@ def test_a_camera_that_does_not_fit_a_colmap_model_is_refused() -> None:
 
 
 def test_cameras_json_holds_one_camera_with_its_lens(tmp_path: Path) -> None:
-    """cameras.json keeps DESIGN §3's keys and gives back the camera with its distortion."""
+    """cameras.json keeps the keys docs/formats.md lists; the camera comes back with its lens."""
     k = Camera(width=320, height=256, fx=150.0, fy=150.0, cx=159.5, cy=127.5)
     lens = k.model_copy(update={"model": "opencv", "dist": [-0.2, 0.0, 0.0, 0.0]})
     cams = CamerasFile.build(

@@ -1,4 +1,4 @@
-"""`endopipe synth`: the case folder of DESIGN §5 with ground truth that is exact and consistent.
+"""`endopipe synth`: the case folder of docs/formats.md, its ground truth exact and consistent.
 
 Depth, poses and mesh are checked against each other (not against the generator's own numbers),
 hits against a brute-force march, the fast mesh-guided tracer against the reference one.

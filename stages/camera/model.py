@@ -1,6 +1,6 @@
 """The one camera type: OpenCV intrinsics of one shared camera plus its lens distortion.
 
-Conventions (DESIGN §4): OpenCV axes (x right, y down, z forward); pixel centres at integer
+Conventions (docs/formats.md): OpenCV axes (x right, y down, z forward); pixel centres at integer
 coordinates, the top-left pixel's centre at (0, 0); depth is z-depth along the optical axis.
 Distortion models, as OpenCV writes them:
 - "pinhole": none;
@@ -39,8 +39,8 @@ class Camera(BaseModel):
     @model_validator(mode="before")
     @classmethod
     def _model_from_dist(cls, data: object) -> object:
-        """intrinsics.json may give `dist` alone (DESIGN §5): five or four numbers are OpenCV's
-        radial-tangential model."""
+        """intrinsics.json may give `dist` alone (docs/formats.md): five or four numbers are
+        OpenCV's radial-tangential model."""
         if isinstance(data, dict) and data.get("dist") and "model" not in data:
             data = {**data, "model": "opencv"}
         return data

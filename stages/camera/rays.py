@@ -1,6 +1,6 @@
 """The one ray generator: pixels -> camera-frame directions -> world rays, numpy or torch.
 
-A direction is returned with camera-frame z = 1, so a ray parameter is a z-depth (DESIGN §4).
+A direction is returned with camera-frame z = 1, so a ray parameter is a z-depth (docs/formats.md).
 For a pinhole camera the torch path computes directions on the tensors' device, in the same
 operations as the NeRF always did (bit-for-bit the numbers it trained with). A distorted lens has
 no closed-form inverse: its directions come from OpenCV's iterative undistortion (on the CPU,

@@ -1,4 +1,4 @@
-"""The depth stage's evaluation (DESIGN §6): both depth protocols against the ground truth,
+"""The depth stage's evaluation (docs/formats.md): both depth protocols against the ground truth,
 which it reaches only through `open_ground_truth` / `depth_of_frame`, the same protocols for
 the two guesses of `metrics.baselines` beside ours, and PSNR / SSIM of the held-out frames."""
 
@@ -66,7 +66,7 @@ def evaluate(
     rgbs: dict[int, np.ndarray],
     principal: tuple[float, float] | None = None,
 ) -> dict:
-    """DESIGN §6: both depth protocols per frame and mean; PSNR / SSIM on held-out frames.
+    """Both depth protocols per frame and mean; PSNR / SSIM on held-out frames.
     `baselines` holds the same protocol blocks (means, no per-frame list) for the radial and
     brightness guesses, scored on exactly our pixels: where the ground truth is valid, inside
     the field of view and ours has a depth, so a hole in ours is no easy pixel dropped for us

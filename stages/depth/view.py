@@ -1,4 +1,4 @@
-"""05_depth (DESIGN §3): depth/<index>.npy, opacity/<index>.npy, views/<index>.npy,
+"""05_depth (docs/formats.md): depth/<index>.npy, opacity/<index>.npy, views/<index>.npy,
 inferred/<index>.npy, 16-bit PNGs, metrics.json, preview.mp4. `DepthView` is the only reader of
 the folder; `DepthMetrics` is metrics.json."""
 

@@ -1,6 +1,6 @@
 """Pixel masks for ingest: the endoscope's field of view and its specular highlights.
 
-Masks follow DESIGN §4: uint8, 255 = use this pixel, 0 = ignore it. The one exception is
+Masks follow docs/formats.md: uint8, 255 = use this pixel, 0 = ignore it. The one exception is
 `specular_mask`, which marks the highlights themselves (255 = highlight, to be excluded);
 `combine` turns the two into the mask ingest writes.
 

@@ -1,4 +1,4 @@
-"""`01_ingest/frames.json` (DESIGN §3 file contract) and the only reader of 01_ingest.
+"""`01_ingest/frames.json` (docs/formats.md) and the only reader of 01_ingest.
 
 Every other stage, command and report asks `IngestView` for a frame's image, mask, file or
 ground truth, so the folder layout is written here once, beside `FramesFile`, which the ingest

@@ -66,7 +66,7 @@ class C3VDPreviewGroundTruth(NumberedGroundTruth):
     def decode_depth(self, raw: np.ndarray) -> np.ndarray:
         if self._width is not None and raw.shape[1] > self._width:
             raw = raw[:, : self._width]
-        return without_codec_edge(raw).astype(np.float32)  # 0 = invalid (DESIGN §4)
+        return without_codec_edge(raw).astype(np.float32)  # 0 = invalid (docs/formats.md)
 
 
 def without_codec_edge(panel: np.ndarray) -> np.ndarray:

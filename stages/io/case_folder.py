@@ -1,4 +1,4 @@
-"""Whether a path is (or lies in) an endopipe case folder (DESIGN §5)."""
+"""Whether a path is (or lies in) an endopipe case folder (docs/formats.md)."""
 
 from __future__ import annotations
 

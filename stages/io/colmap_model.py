@@ -1,9 +1,9 @@
 """COLMAP models: read and written through pycolmap, conventions converted once.
 
-Conventions (DESIGN §4): endopipe poses are OpenCV camera-to-world (x right, y down, z forward)
-and its principal points use the OpenCV pixel convention (the centre of the top-left pixel is
-(0, 0)). COLMAP stores world-to-camera poses and puts that pixel centre at (0.5, 0.5), so a COLMAP
-principal point is the OpenCV one + 0.5. nerfstudio's transforms.json is transforms_json.py.
+Conventions (docs/formats.md): endopipe poses are OpenCV camera-to-world (x right, y down, z
+forward) and its principal points use the OpenCV pixel convention (the centre of the top-left pixel
+is (0, 0)). COLMAP stores world-to-camera poses and puts that pixel centre at (0.5, 0.5), so a
+COLMAP principal point is the OpenCV one + 0.5. nerfstudio's transforms.json is transforms_json.py.
 
 There is one camera type, `Camera`: `camera_from_colmap` / `camera_to_colmap` convert it to and
 from COLMAP's (model name + params), lens distortion included both ways. pycolmap is imported

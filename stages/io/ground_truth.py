@@ -1,6 +1,6 @@
 """Ground truth for evaluation, one implementation per input kind behind one small protocol.
 
-`GroundTruth` reads an endopipe case folder's `gt/` (DESIGN §5); the dataset readers in
+`GroundTruth` reads an endopipe case folder's `gt/` (docs/formats.md); the dataset readers in
 stages/io/ (hamlyn, c3vd, simcol3d, c3vd_preview) each bring their own class that reads the
 dataset's files in place (on `frame_truth.PerFrameGroundTruth`), and
 `datasets.open_ground_truth` picks the one for a `gt_dir`. Every implementation answers in

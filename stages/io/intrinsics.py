@@ -34,7 +34,7 @@ RATIONAL_TERMS = ("k4", "k5", "k6")
 
 
 def load_intrinsics_file(path: Path) -> Camera:
-    """An endopipe intrinsics.json (DESIGN §5) as the Camera it describes."""
+    """An endopipe intrinsics.json (docs/formats.md) as the Camera it describes."""
     if not path.is_file():
         raise InputError(f"intrinsics file not found: {path}")
     try:

@@ -2,7 +2,7 @@
 
 transforms.json (nerfstudio's data format, instant-ngp's before it) holds OpenGL camera-to-world
 matrices (x right, y up, z back) and puts pixel centres at +0.5; endopipe's poses are OpenCV's
-(x right, y down, z forward) and its pixel centres are integers (DESIGN §4). The lens is
+(x right, y down, z forward) and its pixel centres are integers (docs/formats.md). The lens is
 `camera_model` plus coefficients, as nerfstudio's dataparser reads them: a perspective model
 (OPENCV, PINHOLE, ...) takes k1, k2, p1, p2 and k3 (OpenCV's radial-tangential lens), and
 OPENCV_FISHEYE takes k1..k4 (OpenCV's equidistant fisheye). The intrinsics may sit at the top

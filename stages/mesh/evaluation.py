@@ -1,4 +1,4 @@
-"""The mesh stage's evaluation against the case's ground truth (DESIGN §6): alignment of the
+"""The mesh stage's evaluation against the case's ground truth (docs/formats.md): alignment of the
 reconstruction to the ground truth's frame, the crop's cameras and depth, then
 stages.surface.evaluate. Ground truth comes through the one door (`open_ground_truth`,
 `poses_by_frame`)."""

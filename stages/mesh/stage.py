@@ -1,6 +1,6 @@
 """mesh: a surface of the lumen from the depth maps (TSDF fusion) or the NeRF's density (marching
 cubes), cleaned, exported in the world frame and units of 02_poses/cameras.json, and evaluated
-against the case's ground-truth mesh when it has one (DESIGN §3 `06_mesh/`, §6).
+against the case's ground-truth mesh when it has one (docs/formats.md).
 
 - `tsdf`: the per-frame z-depth maps of 05_depth (0 = invalid; pixels whose 05_depth opacity is
   under `min_opacity` dropped) are fused in open3d's tensor VoxelBlockGrid (CPU). Voxel: the

@@ -1,4 +1,4 @@
-"""06_mesh (DESIGN §3): mesh.ply (optionally mesh.obj) and metrics.json, written and read here
+"""06_mesh (docs/formats.md): mesh.ply (optionally mesh.obj) and metrics.json, written and read here
 only: the mesh stage saves through `save_mesh` / `save_metrics`, everyone else reads through
 `MeshView`."""
 

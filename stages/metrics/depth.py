@@ -1,4 +1,4 @@
-"""Evaluation metrics, defined once (DESIGN §6). Plain functions over arrays, no I/O.
+"""Evaluation metrics, defined once (docs/formats.md). Plain functions over arrays, no I/O.
 
 Poses: fraction registered, absolute trajectory error after a sim3 (Umeyama) alignment, relative
 rotation error between consecutive frames.
@@ -75,7 +75,7 @@ def pose_metrics(est: dict[int, np.ndarray], gt: dict[int, np.ndarray]) -> dict[
     }
 
 
-# ---------------------------------------------------------------------------- depth (DESIGN §6)
+# ------------------------------------------------------------------- depth (docs/formats.md)
 
 DEPTH_KEYS = ("abs_rel", "sq_rel", "rmse", "rmse_log", "delta1", "delta2", "delta3")
 
@@ -148,7 +148,7 @@ def depth_sequence_metrics(
     ids: list[int] | None = None,
     unscaled: bool = False,
 ) -> dict:
-    """Both protocols of DESIGN §6: per-frame median scaling, and one median-ratio scale for
+    """Both protocols of docs/formats.md: per-frame median scaling, and one median-ratio scale for
     the whole sequence (stricter: it rewards a 3D-consistent reconstruction). Mean and per frame.
     `unscaled` adds the depths as they are (meaningful when the poses are metric). Each block
     carries `coverage` (see `coverage`); the error metrics are means over covered pixels.

@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict
 
 
 class DepthScores(BaseModel):
-    """One protocol's mean scores over a sequence (DESIGN §6). Which fields are set depends on
+    """One protocol's mean scores over a sequence (docs/formats.md). Which fields are set depends on
     the protocol: the metric ones (median / sequence scaled, unscaled) carry AbsRel..δ³, the
     affine-invariant one AbsRel after a scale and shift, and Spearman's ρ."""
 

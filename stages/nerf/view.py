@@ -1,5 +1,5 @@
-"""04_nerf (DESIGN §3): the only reader of the NeRF stage's folder, beside the stage that writes
-it: the trained model (through render.load_model, so inference never imports training), the
+"""04_nerf (docs/formats.md): the only reader of the NeRF stage's folder, beside the stage that
+writes it: the trained model (through render.load_model, so inference never imports training), the
 training log and plots, the held-out evaluation (metrics.json), the refined cameras
 (cameras_refined.json, written when the poses were refined with the field) and the summary."""
 

@@ -1,13 +1,13 @@
 """poses: one shared camera and a camera-to-world pose per frame (COLMAP SfM, GT or a file).
 
-Outputs (DESIGN §3): cameras.json (CamerasFile), sparse/ (COLMAP text model), points.ply (sparse
-points) and transforms.json (nerfstudio, OpenGL convention). With known poses (source=gt|file)
-the sparse points are triangulated from them, so the centerline stage has a wall to measure.
-When the input has ground-truth poses (a case folder's gt/ or a data set's pose files, all
-through `open_ground_truth`), the reconstruction is moved by the sim3 (Umeyama on camera
-centres) that best maps it onto them: it is then in the ground truth's world frame and
-millimetres ("metric": true, "aligned_to_gt"), so depth and mesh evaluations compare directly;
-without ground truth it stays in COLMAP's units. Settings: config.py; COLMAP: colmap_sfm.py.
+Outputs (docs/formats.md): cameras.json (CamerasFile), sparse/ (COLMAP text model), points.ply
+(sparse points) and transforms.json (nerfstudio, OpenGL convention). With known poses
+(source=gt|file) the sparse points are triangulated from them, so the centerline stage has a wall to
+measure. When the input has ground-truth poses (a case folder's gt/ or a data set's pose files, all
+through `open_ground_truth`), the reconstruction is moved by the sim3 (Umeyama on camera centres)
+that best maps it onto them: it is then in the ground truth's world frame and millimetres ("metric":
+true, "aligned_to_gt"), so depth and mesh evaluations compare directly; without ground truth it
+stays in COLMAP's units. Settings: config.py; COLMAP: colmap_sfm.py.
 """
 
 from __future__ import annotations

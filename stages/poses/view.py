@@ -1,4 +1,4 @@
-"""`02_poses/cameras.json` (DESIGN §3 file contract) and the typed view downstream stages use."""
+"""`02_poses/cameras.json` (docs/formats.md) and the typed view downstream stages use."""
 
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ class CamerasFile(BaseModel):
     """One shared camera and a camera-to-world pose per frame (OpenCV convention).
 
     The camera is `intrinsics()`, one `Camera` with its lens distortion, stored with the keys
-    of DESIGN §3: `model` + `params` are the COLMAP camera (distortion included) and
+    of docs/formats.md: `model` + `params` are the COLMAP camera (distortion included) and
     width..cy its pinhole part in OpenCV's pixel convention, for tools that read only those.
     """
 

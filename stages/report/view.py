@@ -1,4 +1,4 @@
-"""`07_report/` (DESIGN §3): the only reader of the report stage's folder.
+"""`07_report/` (docs/formats.md): the only reader of the report stage's folder.
 
 Commands (batch, export) ask here where a case's page is, instead of spelling the file name.
 """

@@ -1,4 +1,4 @@
-"""Mesh evaluation (DESIGN §6): Chamfer distance, accuracy, completeness and F-score.
+"""Mesh evaluation (docs/formats.md): Chamfer distance, accuracy, completeness and F-score.
 
 Plain functions over arrays (vertices (V, 3), faces (F, 3), OpenCV camera-to-world poses) and
 the one `Camera` (its projection and rays, with the lens, from stages/camera); no I/O.

@@ -1,4 +1,4 @@
-"""`endopipe synth`: synthetic endoscopy cases with exact ground truth (DESIGN §5 case folder).
+"""`endopipe synth`: synthetic endoscopy cases with exact ground truth (docs/formats.md).
 
 A seeded implicit anatomy (colon or cavity) is ray-cast exactly from a seeded camera path with a
 light at the camera; the case gets the video, lossless frames, intrinsics, z-depth, poses, mesh,

@@ -1,4 +1,4 @@
-"""Writes an endopipe case folder (DESIGN §5) frame by frame, then the whole-sequence files.
+"""Writes an endopipe case folder (docs/formats.md) frame by frame, then the whole-sequence files.
 
 Everything goes to a temporary sibling folder that is renamed into place at the end, so an
 interrupted run never leaves something that looks like a finished case.
