@@ -5,10 +5,12 @@ PY := $(VENV)/bin/python
 # GPU users: make TORCH_SPEC='torch' (or the build for their CUDA) ...
 TORCH_SPEC ?= torch==2.13.0
 STAMP := $(VENV)/.installed
+#: The repository folders setup.py installs as endopipe.<folder> (its LAYERS).
+LAYERS := pipeline stages jobs recording synth export
 
 .PHONY: demo test imports bench lint format clean-venv
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml setup.py
 	bash scripts/system-deps.sh
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
@@ -26,11 +28,11 @@ test: $(STAMP)
 	$(VENV)/bin/pytest
 
 # The import contracts of pyproject.toml. grimp walks the package's folder, and the repository keeps
-# pipeline/ and stages/ beside endopipe/, so lint-imports reads a symlink tree with the installed
-# layout (endopipe/{pipeline,stages} -> pipeline/, stages/), from outside the repository.
+# its layers (pipeline/, stages/, ...) beside endopipe/, so lint-imports reads a symlink tree with
+# the installed layout (endopipe/pipeline -> pipeline/, ...), from outside the repository.
 imports: $(STAMP)
 	@tree=$$(mktemp -d) && trap 'rm -rf "$$tree"' EXIT && mkdir "$$tree/endopipe" && \
-	ln -s "$(CURDIR)"/endopipe/* "$(CURDIR)/pipeline" "$(CURDIR)/stages" "$$tree/endopipe/" && \
+	ln -s "$(CURDIR)"/endopipe/* $(addprefix "$(CURDIR)"/,$(LAYERS)) "$$tree/endopipe/" && \
 	cd "$$tree" && PYTHONPATH="$$tree" "$(CURDIR)/$(VENV)/bin/lint-imports" \
 		--config "$(CURDIR)/pyproject.toml" --no-cache
 

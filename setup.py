@@ -1,10 +1,12 @@
-"""Package layout only (metadata is in pyproject.toml): the repository keeps the engine in
-pipeline/ and the domain in stages/, installed as endopipe.pipeline and endopipe.stages, so the
-distribution owns one import name, `endopipe`."""
+"""Package layout only (metadata is in pyproject.toml): the repository keeps each layer in a
+folder of its own (the engine in pipeline/, the stages in stages/, the libraries the commands use
+in jobs/, recording/, synth/ and export/), installed as endopipe.<folder>, so the distribution
+owns one import name, `endopipe`."""
 
 from setuptools import find_packages, setup
 
-ROOTS = {"endopipe": "endopipe", "endopipe.pipeline": "pipeline", "endopipe.stages": "stages"}
+LAYERS = ("pipeline", "stages", "jobs", "recording", "synth", "export")
+ROOTS = {"endopipe": "endopipe", **{f"endopipe.{folder}": folder for folder in LAYERS}}
 packages = [
     f"{name}.{sub}" if sub else name
     for name, folder in ROOTS.items()

@@ -7,25 +7,30 @@ exit code.
 
 from __future__ import annotations
 
+import functools
 import importlib
+import inspect
 import shlex
 import sys
 import traceback
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
 import typer
+from pydantic import BaseModel, ValidationError
 from rich.markup import escape
 
-from endopipe.commands.cases import prepare_case, resolve_case
+from endopipe.commands.cases import prepare_case
 from endopipe.commands.terminal import console, out
+from endopipe.jobs.options import Execution
 from endopipe.pipeline.errors import EndopipeError
+from endopipe.recording.options import RecordingOptions
 
-# The engine (pydantic, yaml), the stages (torch, cv2) and the command bodies are imported by
-# the commands that use them: `endopipe --help` and `status` start in a fraction of a second.
+# The stages (torch, cv2) and the command bodies are imported by the commands that use them:
+# `endopipe --help` and `status` start in a fraction of a second.
 if TYPE_CHECKING:
-    from endopipe.commands.batch.rows import CaseRow, CaseTask
-    from endopipe.commands.recording.command import RecordingOptions
+    from endopipe.jobs.rows import CaseRow, CaseTask
     from endopipe.pipeline.runner import Pipeline
     from endopipe.pipeline.stage import Stage
 
@@ -54,27 +59,58 @@ ConfigOption = Annotated[
     list[str] | None, typer.Option("--config", help="Preset name or YAML file; repeatable.")
 ]
 SetOption = Annotated[list[str] | None, typer.Option("--set", help="stage.key=value; repeatable.")]
-WindowOption = Annotated[
-    int, typer.Option(min=8, help="A recording (long input): keyframes per window.")
-]
-OverlapOption = Annotated[
-    int, typer.Option(min=3, help="A recording: keyframes shared by neighbouring windows.")
-]
-LightScaleOption = Annotated[
-    bool,
-    typer.Option(
-        help="A recording: redraw the joined path for the scale drift the light measures "
-        "(assumes a fixed exposure; off for a scope with auto-exposure)."
-    ),
-]
-OneSfmOption = Annotated[
-    int,
-    typer.Option(
-        min=0,
-        help="A recording of at most this many keyframes is posed by one SfM and its lumen "
-        "fitted once; the windows then split only the field (0: each window its own SfM).",
-    ),
-]
+Command = TypeVar("Command", bound=Callable[..., Any])
+
+
+def with_options(**models: type[BaseModel]) -> Callable[[Command], Command]:
+    """Declares a command's options from pydantic models, one option per field (its default,
+    help and lower bound from the field), so options several commands share are written once,
+    where their defaults live. The command gets each model, validated, under its keyword
+    (`recording=RecordingOptions(...)`); a value the model refuses is a usage error naming the
+    option, raised before any work."""
+
+    def decorate(fn: Command) -> Command:
+        signature = inspect.signature(fn, eval_str=True)
+        kept = [p for p in signature.parameters.values() if p.name not in models]
+        added = [
+            inspect.Parameter(
+                name,
+                inspect.Parameter.KEYWORD_ONLY,
+                default=field.default,
+                annotation=Annotated[
+                    field.annotation,
+                    typer.Option(help=field.description, min=_lower_bound(field.metadata)),
+                ],
+            )
+            for model in models.values()
+            for name, field in model.model_fields.items()
+        ]
+
+        @functools.wraps(fn)
+        def command(*args: Any, **kwargs: Any) -> Any:
+            built = {}
+            for keyword, model in models.items():
+                values = {name: kwargs.pop(name) for name in model.model_fields}
+                try:
+                    built[keyword] = model(**values)
+                except ValidationError as e:
+                    err = e.errors()[0]
+                    option = "--" + str(err["loc"][0]).replace("_", "-")
+                    reason = str(err.get("ctx", {}).get("error", err["msg"]))
+                    raise typer.BadParameter(reason, param_hint=f"'{option}'") from None
+            return fn(*args, **kwargs, **built)
+
+        params = kept + added
+        command.__signature__ = signature.replace(parameters=params)  # type: ignore[attr-defined]
+        command.__annotations__ = {p.name: p.annotation for p in params}
+        return command  # type: ignore[return-value]
+
+    return decorate
+
+
+def _lower_bound(metadata: list[Any]) -> int | None:
+    """A field's `ge` bound, for the option's `min`."""
+    return next((m.ge for m in metadata if hasattr(m, "ge")), None)
 
 
 #: The DAG in order: each stage's module and class.
@@ -111,6 +147,7 @@ def planning_pipeline() -> Pipeline:
 
 
 @app.command()
+@with_options(recording=RecordingOptions, execution=Execution)
 def run(
     ctx: typer.Context,
     input: Annotated[
@@ -131,20 +168,9 @@ def run(
     dry_run: Annotated[bool, typer.Option(help="Show what would run, run nothing.")] = False,
     wait: Annotated[bool, typer.Option(help="Wait for another run on the same case.")] = False,
     quiet: Annotated[bool, typer.Option(help="No progress output.")] = False,
-    window: WindowOption = 100,
-    overlap: OverlapOption = 12,
-    light_scale: LightScaleOption = True,
-    one_sfm_up_to: OneSfmOption = 200,
-    executor: Annotated[
-        str, typer.Option(help="Where a recording's windows run: local | slurm | ray.")
-    ] = "local",
-    jobs: Annotated[int | None, typer.Option(min=1, help="A recording: windows at once.")] = None,
-    cluster_config: Annotated[
-        Path | None, typer.Option(help="Slurm / Ray settings (default configs/cluster.yaml).")
-    ] = None,
-    ray_address: Annotated[
-        str | None, typer.Option(help="Ray cluster to join; default: a local one.")
-    ] = None,
+    *,
+    recording: RecordingOptions,
+    execution: Execution,
 ) -> None:
     """Run the pipeline on INPUT: what is stale runs, what is fresh is reused. A long input
     (ingest.keyframes) whose keyframes fill more than one window runs as a recording: windows
@@ -166,54 +192,9 @@ def run(
         dry_run=dry_run,
         wait=wait,
         quiet=quiet,
-        recording=recording_options(
-            window,
-            overlap,
-            executor,
-            jobs,
-            cluster_config,
-            ray_address,
-            light_scale,
-            one_sfm_up_to,
-        ),
+        recording=recording,
+        execution=execution,
         case_fn=batch_case,
-    )
-
-
-def recording_options(
-    window: int,
-    overlap: int,
-    executor: str,
-    jobs: int | None,
-    cluster_config: Path | None,
-    ray_address: str | None,
-    light_scale: bool = True,
-    one_sfm_up_to: int = 200,
-) -> RecordingOptions:
-    """How `run` and `batch` cut a long input into windows and where the windows run; a typo
-    or an impossible cut is refused before any work, whether or not the input is long."""
-    from endopipe.commands.recording.command import RecordingOptions
-    from endopipe.pipeline.executors import EXECUTORS
-
-    if executor not in EXECUTORS:
-        raise typer.BadParameter(
-            f"'{executor}' is not one of {', '.join(EXECUTORS)}", param_hint="'--executor'"
-        )
-    if overlap >= window:
-        raise typer.BadParameter(
-            f"{overlap} keyframes shared is not under the window's {window}",
-            param_hint="'--overlap'",
-        )
-
-    return RecordingOptions(
-        window=window,
-        overlap=overlap,
-        executor=executor,
-        jobs=jobs,
-        cluster_config=str(cluster_config) if cluster_config else None,
-        ray_address=ray_address,
-        light_scale=light_scale,
-        one_sfm_up_to=one_sfm_up_to,
     )
 
 
@@ -272,16 +253,17 @@ def export(
     ] = "llff",
 ) -> None:
     """Export a case's poses, frames, depth and mesh for nerfstudio, COLMAP, EndoNeRF or PLY."""
-    from endopipe.commands.export import export_case
+    from endopipe.commands.export import export_command
 
-    case_dir = resolve_case(case, workdir)
-    folders = planning_pipeline().folders(case_dir)
-    result = export_case(
-        case_dir, format_, out_dir, folders=folders, symlink=symlink, endonerf_axes=endonerf_axes
+    export_command(
+        planning_pipeline(),
+        case,
+        workdir,
+        format_,
+        out_dir,
+        symlink=symlink,
+        endonerf_axes=endonerf_axes,
     )
-    out.print(f"exported {result.frames} frame(s) as {result.format} to {result.out}")
-    for note in result.notes:
-        out.print(f"  {note}", markup=False, highlight=False)
 
 
 @app.command("stages")
@@ -328,7 +310,7 @@ def synth(
 ) -> None:
     """Write a synthetic lumen case with exact ground truth (depth, poses, mesh, speculars);
     a long recording with pauses and spoiled frames (listed in gt/synth.json) on request."""
-    from endopipe.commands.synth_command import synth_case
+    from endopipe.commands.synth import synth_case
 
     synth_case(
         out_dir,
@@ -418,12 +400,13 @@ def bench(
 
 def batch_case(task: CaseTask) -> CaseRow:
     """One case of `endopipe batch` with this DAG. Top-level, so executors pickle it by name."""
-    from endopipe.commands.batch.case import process_case
+    from endopipe.jobs.case import process_case
 
     return process_case(task, build_pipeline, prepare_case)
 
 
 @app.command()
+@with_options(recording=RecordingOptions, execution=Execution)
 def batch(
     folder: Annotated[
         Path, typer.Argument(help="A data set folder, a folder of videos or cases, or one case.")
@@ -439,57 +422,32 @@ def batch(
             "| simcol3d.",
         ),
     ] = "auto",
-    executor: Annotated[str, typer.Option(help="Where cases run: local | slurm | ray.")] = "local",
-    jobs: Annotated[
-        int | None,
-        typer.Option(
-            min=1,
-            help="Cases at once. local: worker processes (default 1); slurm: array "
-            "parallelism (default from the cluster config); ray: slots of a local cluster.",
-        ),
-    ] = None,
     until: Annotated[str | None, typer.Option(help="Stop each case after this stage.")] = None,
-    cluster_config: Annotated[
-        Path | None, typer.Option(help="Slurm / Ray settings (default configs/cluster.yaml).")
-    ] = None,
-    ray_address: Annotated[
-        str | None,
-        typer.Option(help="Ray cluster to join (auto, ray://host:10001); default: a local one."),
-    ] = None,
-    window: WindowOption = 100,
-    overlap: OverlapOption = 12,
-    light_scale: LightScaleOption = True,
-    one_sfm_up_to: OneSfmOption = 200,
     dry_run: Annotated[bool, typer.Option(help="List the cases and readers only.")] = False,
+    *,
+    recording: RecordingOptions,
+    execution: Execution,
 ) -> None:
     """Run every case under FOLDER through the pipeline; write batch.csv and batch.html. A long
     input whose keyframes fill more than one window (a Hamlyn sequence, a whole video) runs as
     a recording: its windows on the executor, joined into one trajectory, one row."""
-    from endopipe.commands.batch.command import run_batch
+    from functools import partial
 
+    from endopipe.commands.batch.command import run_batch
+    from endopipe.commands.recording import recording_row
+
+    pipe = build_pipeline()
     run_batch(
-        build_pipeline(),
+        pipe,
         batch_case,
         folder,
         workdir,
         config_files=config or [],
         sets=set_ or [],
         format_=format_,
-        executor=executor,
-        jobs=jobs,
+        execution=execution,
         until=until,
-        cluster_config=cluster_config,
-        ray_address=ray_address,
-        recording=recording_options(
-            window,
-            overlap,
-            executor,
-            jobs,
-            cluster_config,
-            ray_address,
-            light_scale,
-            one_sfm_up_to,
-        ),
+        long_case=partial(recording_row, pipe, batch_case, recording, execution, console),
         dry_run=dry_run,
         console=console,
         out=out,

@@ -5,18 +5,19 @@ Run: `.venv/bin/python scripts/bench_recording.py --frames 400 --workdir W [--se
 with `endopipe synth` (0.3 mm a frame at 25 fps, a pause every ~130 frames, 3% blurred and 2%
 washed-out frames), runs `endopipe run` on it in a child process, and prints the wall time, the
 largest peak memory of the run's processes, the disk it left per minute of video, and the
-recording's scores from `recording/summary.json`. A benchmark, not a test.
+recording's scores (its summary, read through the recording's view). A benchmark, not a test.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import resource
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+from endopipe.recording.view import RecordingView
 
 
 def synth(out: Path, frames: int, seed: int) -> None:
@@ -49,25 +50,25 @@ def main() -> None:
     wall = time.perf_counter() - t0
     peak_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     case = args.workdir / name
-    s = json.loads((case / "recording" / "summary.json").read_text())
+    s = RecordingView(case).summary
     minutes = args.frames / 25 / 60
     cells = {
         "frames": args.frames,
-        "keyframes": s["keyframes"],
-        "windows": len(s["windows"]),
+        "keyframes": s.keyframes,
+        "windows": len(s.windows),
         "wall": f"{wall / 60:.1f} min",
         "peak RSS": f"{peak_mb / 1024:.2f} GiB",
         "disk per minute of video": f"{disk_mb(case) / minutes / 1000:.2f} GB",
-        "ATE % path": s["ate_percent_of_path"],
-        "frames posed": f"{s['frames_posed']} / {s['frames']}",
+        "ATE % path": s.ate_percent_of_path,
+        "frames posed": f"{s.frames_posed} / {s.frames}",
         "depth AbsRel all / keyframes": (
-            f"{s['depth_abs_rel_all_frames']:.4f} / {s['depth_abs_rel_keyframes']:.4f}"
-            if s.get("depth_abs_rel_all_frames") is not None
+            f"{s.depth_abs_rel_all_frames:.4f} / {s.depth_abs_rel_keyframes:.4f}"
+            if s.depth_abs_rel_all_frames is not None
             else "-"
         ),
-        "Chamfer % radius": s.get("chamfer_pct_radius"),
-        "off seen %": s.get("off_seen_pct"),
-        "verdict": s["verdict"],
+        "Chamfer % radius": s.chamfer_pct_radius,
+        "off seen %": s.off_seen_pct,
+        "verdict": s.verdict,
     }
     print("| " + " | ".join(cells) + " |")
     print("|" + "---|" * len(cells))

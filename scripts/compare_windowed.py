@@ -14,19 +14,19 @@ benchmark, not a test.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
 from endopipe.cli import build_pipeline
-from endopipe.commands.recording.command import cameras_by_source
+from endopipe.recording.cameras import cameras_by_source
+from endopipe.recording.view import RecordingView
 from endopipe.stages.metrics.depth import pose_metrics
 
 
 def joined_trajectory(case: Path) -> dict[int, np.ndarray]:
-    frames = json.loads((case / "recording" / "trajectory.json").read_text())["frames"]
-    return {f["source_index"]: np.array(f["c2w"]) for f in frames if f["segment"] == 0}
+    frames = RecordingView(case).trajectory().frames
+    return {f.source_index: np.array(f.c2w) for f in frames if f.segment == 0}
 
 
 def main() -> None:
@@ -37,26 +37,26 @@ def main() -> None:
     pipe = build_pipeline()
     joined, single = joined_trajectory(args.windowed), cameras_by_source(pipe, args.single)
     m = pose_metrics(joined, single)
-    summary = json.loads((args.windowed / "recording" / "summary.json").read_text())
+    summary = RecordingView(args.windowed).summary
     print(
-        f"{len(summary['windows'])} windows, {summary['segments']} segment(s), verdict "
-        f"{summary['verdict']}; joined vs single window over {int(m['frames'])} frames: "
+        f"{len(summary.windows)} windows, {summary.segments} segment(s), verdict "
+        f"{summary.verdict}; joined vs single window over {int(m['frames'])} frames: "
         f"{m['ate_percent_of_path']:.2f}% of the path, rotation {m['rre_deg']:.2f} deg"
     )
-    if summary.get("depth_abs_rel_all_frames") is None:
+    if summary.depth_abs_rel_all_frames is None:
         return
-    relative = summary.get("depth_gt_kind") == "relative"
+    relative = summary.depth_gt_kind == "relative"
     depth = pipe.view(args.single, "depth").summary
     block = depth.affine_invariant if relative else depth.median_scaled
     name = "Spearman / SSI-AbsRel / coverage" if relative else "AbsRel / coverage"
-    ours = [summary["depth_abs_rel_all_frames"], summary["depth_coverage_all_frames"]]
+    ours = [summary.depth_abs_rel_all_frames, summary.depth_coverage_all_frames]
     one = [block.abs_rel, block.coverage]
     if relative:
-        ours.insert(0, summary["depth_spearman_all_frames"])
+        ours.insert(0, summary.depth_spearman_all_frames)
         one.insert(0, block.spearman)
     print(
         f"depth {name}: windowed {' / '.join(f'{v:.4f}' for v in ours)} over "
-        f"{summary['depth_frames_scored']} frames; single window "
+        f"{summary.depth_frames_scored} frames; single window "
         f"{' / '.join(f'{v:.4f}' for v in one)}"
     )
 

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from endopipe.cli import build_pipeline
-from endopipe.commands.recording.command import cameras_by_source
-from endopipe.commands.recording.join import fit_similarity, junction_error_pct
 from endopipe.pipeline.cache import MANIFEST, Manifest, list_files
+from endopipe.recording.cameras import cameras_by_source
+from endopipe.recording.join import fit_similarity, junction_error_pct
 from endopipe.stages.centerline.prior import LumenPrior
 
 

@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from endopipe.cli import build_pipeline
-from endopipe.commands.recording.command import WINDOWS_DIR, _truth_poses
-from endopipe.commands.recording.fuse import one_mesh
-from endopipe.commands.recording.join import Joined
-from endopipe.commands.recording.summary import RecordingSummary
 from endopipe.pipeline.config import load_config
+from endopipe.recording.cameras import truth_poses
+from endopipe.recording.fuse import one_mesh
+from endopipe.recording.summary import RecordingSummary
+from endopipe.recording.view import RecordingView
 from endopipe.stages.camera.transforms import umeyama
 
 
@@ -33,9 +33,10 @@ def main() -> None:
     parser.add_argument("--meshes", action="store_true", help="fuse each window alone too")
     args = parser.parse_args()
     pipe = build_pipeline()
-    joined = Joined.model_validate_json((args.case / "recording" / "trajectory.json").read_text())
+    view = RecordingView(args.case)
+    joined = view.trajectory()
     ingest = pipe.view(args.case, "ingest")
-    truth = _truth_poses(ingest)
+    truth = truth_poses(ingest)
     if truth is None:
         raise SystemExit(f"{args.case}: no ground-truth poses to measure drift against")
     configs = load_config(pipe.stages, [str(args.case / "config.yaml")], [])
@@ -58,7 +59,7 @@ def main() -> None:
             summary = RecordingSummary(
                 keyframes=0, windows=[], segments=1, posed_keyframes=0, verdict="ok"
             )
-            one_mesh(pipe, args.case / WINDOWS_DIR, part, configs, ingest, truth, summary)
+            one_mesh(pipe, view.windows_dir, part, configs, ingest, truth, summary)
             chamfer = f"{summary.chamfer_pct_radius:.2f}"
         # umeyama's scale maps the estimate onto the truth: a window drawn larger has a smaller one
         print(f"| {name} | {len(own)} | {s_all / s:.4f} | {first / last:.4f} | {chamfer} |")

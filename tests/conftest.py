@@ -67,7 +67,7 @@ def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> TinyRun:
     end through the CLI with TINY (about 2.5 minutes, once per session). Read it, never change
     it: tests that change it work on a copy."""
     from endopipe.cli import main
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     src = tmp_path_factory.mktemp("tiny_input") / "colon"
     generate_case(src, SynthConfig(seed=3, frames=16, width=160, height=128))
@@ -100,7 +100,7 @@ WITHDRAWAL = {
 @pytest.fixture(scope="session")
 def withdrawal(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The case folder of WITHDRAWAL (about 25 s to render, once per session)."""
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     src = tmp_path_factory.mktemp("withdrawal") / "withdrawal"
     generate_case(src, SynthConfig(**WITHDRAWAL))

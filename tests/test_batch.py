@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from endopipe.cli import batch_case, main
-from endopipe.commands.batch import CaseRow, CaseTask
-from endopipe.commands.batch.driver import run_cases
+from endopipe.jobs.driver import run_cases
+from endopipe.jobs.rows import CaseRow, CaseTask
 from endopipe.pipeline.errors import EndopipeError
 from endopipe.pipeline.executors import (
     ClusterConfig,
@@ -38,7 +38,7 @@ BROKEN = "videos__broken"
 
 def make_batch_folder(root: Path) -> Path:
     """The mixed folder every executor test runs on (8 frames a case, 128x96 or less)."""
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     generate_case(root / "synth" / "colon", SynthConfig(seed=3, frames=8, width=128, height=96))
     write_hamlyn(root / "hamlyn" / "rectified01", n=8, seed=1)
@@ -297,9 +297,9 @@ def test_rows_name_the_failed_stage_and_keep_the_wall_time_of_the_outputs(tmp_pa
 def test_a_doubtful_pose_verdict_reaches_batch_csv_and_page(tmp_path: Path) -> None:
     """The poses' verdict (02_poses/verdict.json) in its own columns, just before the poses
     stage's numbers; a case from before the verdict leaves them empty."""
-    from endopipe.commands.batch.case import note_pose_verdict
     from endopipe.commands.batch.page import write_html
     from endopipe.commands.batch.table import write_csv
+    from endopipe.jobs.case import note_pose_verdict
     from endopipe.stages.poses.verdict import FrameVerdict, PoseVerdict
     from tests.handmade_case import make_case
 

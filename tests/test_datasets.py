@@ -353,7 +353,7 @@ UNSCALED_ABS_REL_MAX = 0.15
 @pytest.fixture(scope="module")
 def synth_case(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small synthetic colon (16 frames, 160x128) with exact depth and poses, in mm."""
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     case = tmp_path_factory.mktemp("synth") / "colon"
     generate_case(case, SynthConfig(seed=0, frames=16, width=160, height=128))

@@ -17,8 +17,8 @@ import trimesh
 
 from endopipe.cli import build_pipeline, main
 from endopipe.commands import export
-from endopipe.commands.export import ExportResult
-from endopipe.commands.export.endonerf import (
+from endopipe.export import ExportResult
+from endopipe.export.endonerf import (
     ENDONERF_AXES,
     c2w_from_llff,
     endonerf_depth_scale,

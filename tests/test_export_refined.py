@@ -18,9 +18,8 @@ import trimesh
 
 from endopipe.cli import build_pipeline, main
 from endopipe.commands import export
-from endopipe.commands.export import ExportResult
-from endopipe.commands.export.endonerf import MAX_LENS_SHIFT_PX, lens_shift_px
-from endopipe.commands.synth import SynthConfig, generate_case
+from endopipe.export import ExportResult
+from endopipe.export.endonerf import MAX_LENS_SHIFT_PX, lens_shift_px
 from endopipe.pipeline.errors import EndopipeError
 from endopipe.stages.camera import Camera, backproject
 from endopipe.stages.io.colmap_model import read_colmap_model
@@ -29,6 +28,7 @@ from endopipe.stages.mesh.view import MeshView
 from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
 from endopipe.stages.surface.raycast import point_to_surface
+from endopipe.synth import SynthConfig, generate_case
 
 REFINE = [
     "poses.source=gt",

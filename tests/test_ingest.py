@@ -14,7 +14,7 @@ from endopipe.cli import main
 
 @pytest.fixture(scope="module")
 def ingested(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     src = tmp_path_factory.mktemp("src") / "colon"
     generate_case(src, SynthConfig(seed=1, frames=6, width=320, height=256))
@@ -152,7 +152,7 @@ def test_max_frames_stops_decoding_and_counts_what_was_not_read(tmp_path: Path, 
 @pytest.fixture(scope="module")
 def small_case(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A synthetic case folder (8 frames, 96x80, full ground truth); tests change copies."""
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     src = tmp_path_factory.mktemp("small") / "colon"
     generate_case(src, SynthConfig(seed=3, frames=8, width=96, height=80))

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from endopipe.commands.recording.join import Joined, JoinedFrame, ScaleKnot, Sim3
-from endopipe.commands.recording.light_scale import (
+from endopipe.recording.join import Joined, JoinedFrame, ScaleKnot, Sim3
+from endopipe.recording.light_scale import (
     MAX_WINDOW_DRIFT,
     frame_light,
     largest_window_drift,

@@ -1,5 +1,5 @@
-"""The wheel: one import name (`endopipe`, with the engine and the stages inside it), every preset
-and data file shipped, and the installed copy runs away from the repository."""
+"""The wheel: one import name (`endopipe`, with the engine, the stages and the libraries inside
+it), every preset and data file shipped, and the installed copy runs away from the repository."""
 
 from __future__ import annotations
 
@@ -16,8 +16,10 @@ REPO = Path(__file__).resolve().parents[1]
 #: repository folder -> where setup.py installs it
 PACKAGE_ROOTS = {
     "endopipe": "endopipe",
-    "pipeline": "endopipe/pipeline",
-    "stages": "endopipe/stages",
+    **{
+        folder: f"endopipe/{folder}"
+        for folder in ("pipeline", "stages", "jobs", "recording", "synth", "export")
+    },
 }
 NOT_SOURCE = shutil.ignore_patterns(
     ".git", ".venv", "workdir", "build", "dist", "*.egg-info", "__pycache__", "*.pyc", ".*cache"
@@ -66,8 +68,8 @@ def test_the_wheel_owns_one_import_name_and_ships_every_data_file(wheel: Path) -
     names = set(zipfile.ZipFile(wheel).namelist())
     tops = {n.split("/")[0] for n in names}
     packages = {t for t in tops if not t.endswith(".dist-info")}
-    assert packages == {"endopipe"} and len(tops) == 2, tops  # no top-level pipeline, stages
-    assert {"endopipe/pipeline/runner.py", "endopipe/stages/__init__.py"} <= names
+    assert packages == {"endopipe"} and len(tops) == 2, tops  # no top-level pipeline, stages...
+    assert {f"{installed}/__init__.py" for installed in PACKAGE_ROOTS.values()} <= names
     presets = {f"endopipe/configs/{f.name}" for f in (REPO / "endopipe" / "configs").glob("*.yaml")}
     assert {"endopipe/configs/default.yaml", "endopipe/configs/cavity.yaml"} <= presets
     missing = (presets | data_files()) - names

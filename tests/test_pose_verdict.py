@@ -129,7 +129,7 @@ def run_args(source: Path, workdir: Path) -> list[str]:
 
 @pytest.fixture(scope="module")
 def small_colon(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     out = tmp_path_factory.mktemp("synth") / "colon"
     generate_case(out, SynthConfig(seed=3, frames=16, width=256, height=208))
@@ -199,7 +199,7 @@ def test_doubtful_global_poses_ask_the_incremental(small_colon: Path, tmp_path: 
 def test_bench_cavity_from_video_keeps_the_mapper_that_does_not_drift(tmp_path: Path) -> None:
     """The bench cavity from video: the incremental mapper drifts (ATE 17.7%); the verdict
     sees it."""
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     src = tmp_path / "cavity"
     generate_case(src, SynthConfig(seed=7, frames=60, width=320, height=256, shape="cavity"))

@@ -12,25 +12,31 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from endopipe.cli import main
-from endopipe.commands.recording.join import join_windows
-from endopipe.commands.recording.windows import plan_windows
-from endopipe.pipeline.errors import ConfigError
+from endopipe.recording.join import join_windows
+from endopipe.recording.options import RecordingOptions
+from endopipe.recording.view import RecordingView
+from endopipe.recording.windows import plan_windows
 from endopipe.stages.camera.transforms import apply_sim3, look_at
 from endopipe.stages.metrics.depth import pose_metrics
+
+CUT = RecordingOptions(window=20, overlap=6)
 
 
 def test_windows_cover_every_keyframe_and_overlap() -> None:
     keyframes = list(range(100, 147))
-    plan = plan_windows(keyframes, 20, 6)
+    plan = plan_windows(keyframes, CUT)
     assert [len(w) for w in plan.windows] == [20, 20, 20]
     assert sorted({i for w in plan.windows for i in w}) == keyframes
     for a, b in zip(plan.windows, plan.windows[1:], strict=False):
         assert len(set(a) & set(b)) >= 6
-    assert plan_windows(keyframes[:20], 20, 6).windows == [keyframes[:20]]
-    with pytest.raises(ConfigError, match="overlap"):
-        plan_windows(keyframes, 20, 2)
+    assert plan_windows(keyframes[:20], CUT).windows == [keyframes[:20]]
+    with pytest.raises(ValidationError, match="overlap"):
+        RecordingOptions(window=20, overlap=2)
+    with pytest.raises(ValidationError, match="not under the window"):
+        RecordingOptions(window=20, overlap=20)
 
 
 def _path(n: int) -> list[np.ndarray]:
@@ -56,7 +62,7 @@ def _window(truth: list[np.ndarray], frames: list[int], seed: int, noise: float 
 
 def test_join_recovers_the_trajectory_from_windows_in_their_own_frames() -> None:
     truth = _path(47)
-    plan = plan_windows(list(range(47)), 20, 6)
+    plan = plan_windows(list(range(47)), CUT)
     poses = [_window(truth, w, seed=k, noise=0.01) for k, w in enumerate(plan.windows)]
     joined = join_windows(["w0", "w1", "w2"], poses, plan.windows)
     assert joined.segments == 1 and all(j.joined for j in joined.junctions)
@@ -68,7 +74,7 @@ def test_join_recovers_the_trajectory_from_windows_in_their_own_frames() -> None
 
 def test_a_failed_or_broken_window_splits_the_trajectory_not_bends_it() -> None:
     truth = _path(47)
-    plan = plan_windows(list(range(47)), 20, 6)
+    plan = plan_windows(list(range(47)), CUT)
     poses = [_window(truth, w, seed=k) for k, w in enumerate(plan.windows)]
     failed = join_windows(["w0", "w1", "w2"], [poses[0], None, poses[2]], plan.windows)
     assert failed.segments == 2
@@ -86,28 +92,27 @@ def test_a_failed_or_broken_window_splits_the_trajectory_not_bends_it() -> None:
 
 
 def _trajectory(case: Path) -> dict[int, np.ndarray]:
-    frames = json.loads((case / "recording" / "trajectory.json").read_text())["frames"]
-    return {f["source_index"]: np.array(f["c2w"]) for f in frames}
+    return {f.source_index: np.array(f.c2w) for f in RecordingView(case).trajectory().frames}
 
 
 def test_a_withdrawal_through_windows_matches_the_truth_and_one_window(
-    withdrawal: Path, tmp_path: Path
+    withdrawal: Path, tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
     wd = tmp_path / "wd"
     args = ["run", str(withdrawal), "--workdir", str(wd), "--until", "poses", "--quiet"]
     args += ["--set", "ingest.keyframes.mode=content", "--one-sfm-up-to", "0"]
     assert main([*args, "--window", "14", "--overlap", "5"]) == 0
     case = wd / "withdrawal"
-    summary = json.loads((case / "recording" / "summary.json").read_text())
-    assert len(summary["windows"]) >= 2 and summary["segments"] == 1
-    assert summary["verdict"] == "ok", summary["reasons"]
-    assert not summary["one_sfm"]
+    summary = RecordingView(case).summary
+    assert len(summary.windows) >= 2 and summary.segments == 1
+    assert summary.verdict == "ok", summary.reasons
+    assert not summary.one_sfm
     assert not (case / "one_sfm").exists()
     joined = _trajectory(case)
     truth = json.loads((withdrawal / "gt" / "poses.json").read_text())["poses"]
     truth = {i: np.array(p) for i, p in enumerate(truth)}
     ate = pose_metrics(joined, truth)["ate_percent_of_path"]
-    print(f"{len(summary['windows'])} windows, ATE {ate:.2f}% of the path")
+    print(f"{len(summary.windows)} windows, ATE {ate:.2f}% of the path")
     assert ate < 2.0
     # the same keyframes in one window (the path of a short clip): the joined trajectory agrees
     one = tmp_path / "one"
@@ -122,10 +127,17 @@ def test_a_withdrawal_through_windows_matches_the_truth_and_one_window(
     # a re-run finds every window done and the recording joined from them: nothing runs
     windows = sorted((case / "windows").iterdir())
     before = [len(list((w / "runs").glob("*.json"))) for w in windows]
-    written = (case / "recording" / "key.json").stat().st_mtime_ns
+    written = (case / "recording" / "manifest.json").stat().st_mtime_ns
     assert main([*args, "--window", "14", "--overlap", "5"]) == 0
     assert [len(list((w / "runs").glob("*.json"))) for w in windows] == before
-    assert (case / "recording" / "key.json").stat().st_mtime_ns == written
+    assert (case / "recording" / "manifest.json").stat().st_mtime_ns == written
+    # status reads the recording through its view: its windows and how the join went
+    capsys.readouterr()
+    assert main(["status", str(case)]) == 0
+    said = " ".join(capsys.readouterr().out.split())
+    n = len(summary.windows)
+    assert f"a recording in {n} windows" in said
+    assert f"last join: {n} of {n} windows ok, verdict ok" in said
 
 
 def test_a_short_recording_is_posed_once_and_its_windows_take_their_stretch(
@@ -142,9 +154,9 @@ def test_a_short_recording_is_posed_once_and_its_windows_take_their_stretch(
     args += ["--set", "ingest.keyframes.mode=content", "--window", "14", "--overlap", "5"]
     assert main(args) == 0
     case = wd / "withdrawal"
-    summary = json.loads((case / "recording" / "summary.json").read_text())
-    assert len(summary["windows"]) >= 2 and summary["segments"] == 1, summary["reasons"]
-    assert summary["one_sfm"]
+    summary = RecordingView(case).summary
+    assert len(summary.windows) >= 2 and summary.segments == 1, summary.reasons
+    assert summary.one_sfm
     ingest = IngestView(case / "01_ingest")
     whole = {ingest.frame(i).source_index: c for i, c in PosesView(case / "02_poses").c2w.items()}
     joined = _trajectory(case)
@@ -160,9 +172,9 @@ def test_a_short_recording_is_posed_once_and_its_windows_take_their_stretch(
         prior = json.loads((window / "03_centerline" / "manifest.json").read_text())["summary"]
         assert prior["prior_reason"].startswith("given"), prior["prior_reason"]
     # a re-run changes nothing: the shared folder and every window are fresh
-    written = (case / "recording" / "key.json").stat().st_mtime_ns
+    written = (case / "recording" / "manifest.json").stat().st_mtime_ns
     assert main(args) == 0
-    assert (case / "recording" / "key.json").stat().st_mtime_ns == written
+    assert (case / "recording" / "manifest.json").stat().st_mtime_ns == written
     assert len(list((case / "one_sfm").iterdir())) == 1
 
 
@@ -172,7 +184,7 @@ def test_a_frame_between_keyframes_registers_on_their_depth(withdrawal: Path) ->
     register."""
     import cv2
 
-    from endopipe.commands.recording.frames import Reference, register
+    from endopipe.recording.frames import Reference, register
     from endopipe.stages.camera import Camera
 
     camera = Camera.load(withdrawal / "intrinsics.json")
@@ -233,8 +245,8 @@ def test_sigkill_mid_recording_reruns_only_unfinished_windows(
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
     assert len(list((windows / "w000" / "runs").glob("*.json"))) == runs_w0  # not run again
-    summary = json.loads((wd / "withdrawal" / "recording" / "summary.json").read_text())
-    assert all(w["status"] == "ok" for w in summary["windows"]) and summary["segments"] == 1
+    summary = RecordingView(wd / "withdrawal").summary
+    assert all(w.status == "ok" for w in summary.windows) and summary.segments == 1
 
 
 @pytest.mark.slow
@@ -290,7 +302,7 @@ def test_batch_takes_a_long_hamlyn_sequence_through_windows(
     as a recording (windows, one trajectory, one row in batch.csv), the clip as a case."""
     import csv
 
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     folder = tmp_path / "hamlyn"
     seq = _as_hamlyn_edm(withdrawal, folder / "rectified01")
@@ -302,12 +314,12 @@ def test_batch_takes_a_long_hamlyn_sequence_through_windows(
     rows = {r["case"]: r for r in csv.DictReader((wd / "batch.csv").open())}
     assert set(rows) == {"rectified01", "short"} and all(r["status"] == "ok" for r in rows.values())
     case = wd / "rectified01"
-    summary = json.loads((case / "recording" / "summary.json").read_text())
-    assert len(summary["windows"]) >= 2 and summary["segments"] == 1, summary["reasons"]
+    summary = RecordingView(case).summary
+    assert len(summary.windows) >= 2 and summary.segments == 1, summary.reasons
     assert not (wd / "short" / "windows").exists()
     truth = json.loads((withdrawal / "gt" / "poses.json").read_text())["poses"]
     ate = pose_metrics(_trajectory(case), {i: np.array(p) for i, p in enumerate(truth)})
-    print(f"{len(summary['windows'])} windows, ATE {ate['ate_percent_of_path']:.2f}% of the path")
+    print(f"{len(summary.windows)} windows, ATE {ate['ate_percent_of_path']:.2f}% of the path")
     assert ate["ate_percent_of_path"] < 2.0
     assert seq.name in rows["rectified01"]["input"]
 
@@ -342,14 +354,14 @@ def test_a_withdrawal_through_windows_to_one_mesh_is_redrawn_by_the_light(
     args = ["run", str(withdrawal), "--workdir", str(wd), "--quiet", "--config", "fast"]
     args += ["--set", "ingest.keyframes.mode=content", "--set", "nerf.train.steps=300"]
     assert main([*args, "--window", "14", "--overlap", "5", "--one-sfm-up-to", "0"]) == 0
-    summary = json.loads((wd / "withdrawal" / "recording" / "summary.json").read_text())
-    light = summary["light_scale"]
-    print(light, summary["ate_as_joined_pct"], summary["ate_percent_of_path"])
-    print(summary["depth_abs_rel_all_frames"], summary["chamfer_pct_radius"])
+    summary = RecordingView(wd / "withdrawal").summary
+    light = summary.light_scale
+    print(light, summary.ate_as_joined_pct, summary.ate_percent_of_path)
+    print(summary.depth_abs_rel_all_frames, summary.chamfer_pct_radius)
     # Measured: 23 keyframes in 2 windows, falloff 0.71, drift 1.05x, ATE 0.17% as joined and
     # 0.23% redrawn (a path this short drifts less than the light's scatter), depth AbsRel 0.089,
     # Chamfer 13.3% (300 steps on 14-keyframe windows).
-    assert light["applied"] and 0.5 < light["falloff"] < 0.9 and light["drift_range"] < 1.15
-    assert summary["ate_percent_of_path"] <= summary["ate_as_joined_pct"] + 0.1
-    assert summary["depth_abs_rel_all_frames"] < 0.11
-    assert summary["chamfer_pct_radius"] < 16.0
+    assert light.applied and 0.5 < light.falloff < 0.9 and light.drift_range < 1.15
+    assert summary.ate_percent_of_path <= summary.ate_as_joined_pct + 0.1
+    assert summary.depth_abs_rel_all_frames < 0.11
+    assert summary.chamfer_pct_radius < 16.0

@@ -18,7 +18,7 @@ RUN = ["--until", "centerline", "--set", "poses.source=gt", "--quiet"]
 @pytest.fixture(scope="module")
 def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """An 8-frame synthetic colon run through ingest, poses and centerline: <root>/wd/colon."""
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     root = tmp_path_factory.mktemp("case_folder")
     generate_case(root / "colon", SynthConfig(seed=3, frames=8, width=96, height=80))

@@ -26,7 +26,7 @@ def endopipe(*args: str) -> list[str]:
 @pytest.fixture(scope="module")
 def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A 12-frame synthetic colon run through ingest and poses with a preset and a --set."""
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     root = tmp_path_factory.mktemp("status")
     generate_case(root / "colon", SynthConfig(seed=3, frames=12, width=160, height=128))

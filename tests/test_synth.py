@@ -17,9 +17,10 @@ import pytest
 from pydantic import ValidationError
 from scipy.ndimage import map_coordinates
 
-from endopipe.commands.synth import Setup, SynthConfig, SynthSummary, generate_case, prepare
-from endopipe.commands.synth.raycast import MeshGuide, camera_rays, trace_frame
 from endopipe.stages.camera import Camera, backproject, project
+from endopipe.synth import SynthConfig, SynthSummary, generate_case
+from endopipe.synth.generate import Setup, prepare
+from endopipe.synth.raycast import MeshGuide, camera_rays, trace_frame
 
 SMALL = {"frames": 12, "width": 160, "height": 128}
 SHAPES = ("colon", "cavity")

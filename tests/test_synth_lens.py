@@ -15,10 +15,11 @@ import numpy as np
 import pytest
 from scipy.ndimage import map_coordinates
 
-from endopipe.commands.synth import SynthConfig, generate_case, prepare
-from endopipe.commands.synth.lens import LENSES, Lens, check_monotonic, lens_camera
-from endopipe.commands.synth.raycast import finite_difference_gradient
 from endopipe.stages.camera import Camera, backproject, pixel_directions, project
+from endopipe.synth import SynthConfig, generate_case
+from endopipe.synth.generate import prepare
+from endopipe.synth.lens import LENSES, Lens, check_monotonic, lens_camera
+from endopipe.synth.raycast import finite_difference_gradient
 
 SMALL = {"frames": 3, "width": 96, "height": 80}
 BARREL = SynthConfig(lens="barrel", **SMALL)

@@ -248,7 +248,7 @@ def case_input(inputs: Path, case: BenchCase, console) -> Path:
 def synth_input(inputs: Path, case: BenchCase, console) -> Path:
     """The case's synthetic input (written once; cases that differ only in what they are told
     share it)."""
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     src = inputs / input_name(case)
     if not (src / "intrinsics.json").is_file():
@@ -496,7 +496,7 @@ def _score(block: DepthScores | None, name: str) -> float | None:
 def lens_label(case: BenchCase) -> str:
     """'pinhole', 'barrel 110°', 'pinhole 110°' (the diagonal field of view when not the
     synth's default pinhole); '(estimated)' when COLMAP is not told the lens."""
-    from endopipe.commands.synth.lens import LENSES
+    from endopipe.synth.lens import LENSES
 
     fov = case.fov_diag if case.fov_diag is not None else LENSES[case.lens].fov_diag_deg
     label = case.lens + ("" if fov is None else f" {fov:g}°")

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 from endopipe.commands.cases import prepare_case
 from endopipe.commands.run import print_record
-from endopipe.commands.synth_command import write_synth
+from endopipe.commands.synth import write_synth
 from endopipe.commands.terminal import console, out
 
 if TYPE_CHECKING:
@@ -21,9 +21,9 @@ if TYPE_CHECKING:
 def run_demo(build_pipeline: Callable[[], Pipeline], workdir: Path, frames: int) -> None:
     """Synthesise the input once (kept for later demos), run it as the case `demo`. The DAG is
     built after synthesis: a workdir that cannot be written fails before torch loads."""
-    from endopipe.commands.synth import SynthConfig
     from endopipe.pipeline.config import load_config
     from endopipe.pipeline.runner import ensure_writable
+    from endopipe.synth import SynthConfig
 
     ensure_writable(workdir)
     case_src = workdir / "demo_input"

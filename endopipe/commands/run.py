@@ -14,9 +14,10 @@ from endopipe.commands.terminal import console, out
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from endopipe.commands.batch.rows import CaseRow, CaseTask
-    from endopipe.commands.recording.command import RecordingOptions
+    from endopipe.jobs.options import Execution
+    from endopipe.jobs.rows import CaseRow, CaseTask
     from endopipe.pipeline.runner import Pipeline, RunRecord
+    from endopipe.recording.options import RecordingOptions
 
 
 def run_case(
@@ -36,6 +37,7 @@ def run_case(
     wait: bool,
     quiet: bool,
     recording: RecordingOptions | None = None,
+    execution: Execution | None = None,
     case_fn: Callable[[CaseTask], CaseRow] | None = None,
 ) -> None:
     """Run INPUT (a video, an image folder, an input case folder, or a case folder an earlier
@@ -79,12 +81,14 @@ def run_case(
         case_dir = prepare_case(input_path, workdir, name, intrinsics)
     if (
         recording is not None
+        and execution is not None
         and case_fn is not None
         and not dry_run
         and until != "ingest"
         and may_be_recording(case_dir, configs)
     ):
-        from endopipe.commands.recording.command import is_recording, run_recording
+        from endopipe.commands.recording import run_recording
+        from endopipe.recording.windows import is_recording
 
         first = pipe.run(
             case_dir,
@@ -104,6 +108,7 @@ def run_case(
                 case_dir,
                 configs,
                 recording,
+                execution,
                 until=until,
                 console=console,
                 from_stage=from_stage,
@@ -133,8 +138,8 @@ def run_case(
 
 def may_be_recording(case_dir: Path, configs: dict) -> bool:
     """Whether ingest will keep this case's frames by content (a long input)."""
-    from endopipe.commands.recording.command import is_long_input
     from endopipe.pipeline.stage import CaseInfo
+    from endopipe.recording.windows import is_long_input
 
     info = CaseInfo.load(case_dir)
     intrinsics = Path(info.intrinsics_file) if info.intrinsics_file else None

@@ -54,19 +54,23 @@ def show_status(
 
 def show_windows(case_dir: Path) -> None:
     """A recording's windows, each a case of its own: where they are and how the last join
-    went (the stages above are the whole recording's: its ingest, and its poses and centerline
-    when it was posed by one SfM)."""
-    import json
+    went, read through the recording's view (the stages above are the whole recording's: its
+    ingest, and its poses and centerline when it was posed by one SfM)."""
+    from endopipe.pipeline.errors import SummaryMismatch
+    from endopipe.recording.view import RecordingView
 
-    windows = sorted(p for p in (case_dir / "windows").glob("w[0-9][0-9][0-9]") if p.is_dir())
+    view = RecordingView(case_dir)
+    windows = view.window_dirs()
     if not windows:
         return
     line = f"a recording in {len(windows)} windows, each a case: endopipe status {windows[0]}"
-    summary = case_dir / "recording" / "summary.json"
-    if summary.is_file():
-        s = json.loads(summary.read_text())
-        ok = sum(w["status"] == "ok" for w in s["windows"])
-        line += f"; last join: {ok} of {len(s['windows'])} windows ok, verdict {s['verdict']}"
+    if view.exists():
+        try:
+            s = view.summary
+            ok = sum(w.status == "ok" for w in s.windows)
+            line += f"; last join: {ok} of {len(s.windows)} windows ok, verdict {s.verdict}"
+        except SummaryMismatch as e:
+            line += f"; {e}"
     else:
         line += "; not joined yet"
     out.print(escape(line), highlight=False, soft_wrap=True)

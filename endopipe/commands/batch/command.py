@@ -10,16 +10,19 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from endopipe.commands.batch.driver import run_cases
 from endopipe.commands.batch.page import write_html
-from endopipe.commands.batch.recordings import run_long_case
-from endopipe.commands.batch.rows import CaseRow, CaseTask
 from endopipe.commands.batch.table import write_csv
-from endopipe.commands.recording.command import RecordingOptions, is_long_input
+from endopipe.jobs.driver import run_cases
+from endopipe.jobs.options import Execution
+from endopipe.jobs.rows import CaseRow, CaseTask
 from endopipe.pipeline.config import load_config
 from endopipe.pipeline.errors import EndopipeError
-from endopipe.pipeline.executors import EXECUTORS, ClusterConfig, load_cluster_config
+from endopipe.pipeline.executors import ClusterConfig, load_cluster_config
 from endopipe.pipeline.runner import Pipeline, ensure_writable
+from endopipe.pipeline.stage import StageConfig
+
+#: A case taken as a recording when it is one: its row, or None for an ordinary case.
+LongCase = Callable[[CaseTask, dict[str, StageConfig]], CaseRow | None]
 
 
 def run_batch(
@@ -31,12 +34,9 @@ def run_batch(
     config_files: Sequence[str] = (),
     sets: Sequence[str] = (),
     format_: str = "auto",
-    executor: str = "local",
-    jobs: int | None = None,
+    execution: Execution,
     until: str | None = None,
-    cluster_config: Path | None = None,
-    ray_address: str | None = None,
-    recording: RecordingOptions | None = None,
+    long_case: LongCase | None = None,
     dry_run: bool = False,
     console: Console,
     out: Console,
@@ -44,19 +44,20 @@ def run_batch(
     """Every case under `folder` through `pipe` with `case_fn` (top-level, picklable: it runs
     in worker processes or cluster jobs). Raises when a case failed, after writing the table.
 
-    A long input whose keyframes fill more than one window (a Hamlyn sequence, a whole video)
-    runs as `endopipe run` runs it: windows cut and sent as `recording` says (its defaults on
-    this batch's executor when None), joined into one trajectory; one row for the recording.
-    Recordings go one after another, each using the executor for its windows; the short
+    `long_case` (the recording command, handed in by the composition root) takes a case first
+    and returns its row when the case is a recording it ran (a long input whose keyframes fill
+    more than one window: a Hamlyn sequence, a whole video), None when it is an ordinary case.
+    Recordings go one after another, each using the executor for its windows; the ordinary
     cases go together."""
     from endopipe.stages.io.cases import find_cases
 
     if until is not None:
         pipe.index(until)
-    if executor not in EXECUTORS:
-        raise EndopipeError(f"unknown executor '{executor}'; executors: {', '.join(EXECUTORS)}")
     configs = load_config(pipe.stages, config_files, sets)
-    cluster = load_cluster_config(cluster_config) if executor != "local" else ClusterConfig()
+    executor = execution.executor
+    cluster = (
+        load_cluster_config(execution.cluster_config) if executor != "local" else ClusterConfig()
+    )
     ensure_writable(workdir)
     wd = workdir.resolve()
     cases = find_cases(folder, format_, skip=(wd,))
@@ -87,22 +88,19 @@ def run_batch(
     ]
     t0 = time.perf_counter()
     recorded: dict[str, CaseRow] = {}
-    long = [t for t in tasks if is_long_input(Path(t.input), None, t.reader, configs)]
-    if long:
-        options = recording or RecordingOptions(executor=executor, jobs=jobs)
-        for task in long:
-            row = run_long_case(pipe, case_fn, task, configs, options, console)
-            if row is not None:
-                recorded[task.name] = row
-                print_case_row(console, row)
+    for task in tasks if long_case is not None else []:
+        row = long_case(task, configs)
+        if row is not None:
+            recorded[task.name] = row
+            print_case_row(console, row)
     short = run_cases(
         executor,
         case_fn,
         [t for t in tasks if t.name not in recorded],
-        jobs=jobs,
+        jobs=execution.jobs,
         workdir=wd,
         cluster=cluster,
-        ray_address=ray_address,
+        ray_address=execution.ray_address,
         on_row=lambda row: print_case_row(console, row),
         note=lambda m: console.print(f"[dim]{escape(m)}[/dim]"),
     )

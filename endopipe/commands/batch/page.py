@@ -8,7 +8,6 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from endopipe.commands.batch.rows import CaseRow
 from endopipe.commands.batch.table import (
     POSE_COLUMNS,
     column_stats,
@@ -17,6 +16,7 @@ from endopipe.commands.batch.table import (
     row_values,
     table_columns,
 )
+from endopipe.jobs.rows import CaseRow
 
 _CSS = """
 body{font:14px system-ui,sans-serif;margin:24px;color:#222}

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from endopipe.commands.batch.rows import CaseRow
+from endopipe.jobs.rows import CaseRow
 
 FIXED_COLUMNS = (
     "case",
