@@ -485,7 +485,10 @@ def main(argv: list[str] | None = None) -> int:
 
     With standalone_mode=False typer returns an exit code instead of exiting; Ctrl-C comes
     back as 130 (typer turns KeyboardInterrupt into Exit(130)), and must not end as 0."""
+    from endopipe.commands.environment import check_installed
+
     try:
+        check_installed()
         code = app(args=argv, standalone_mode=False)
     except EndopipeError as e:
         console.print(

@@ -214,3 +214,21 @@ def test_an_error_message_keeps_its_square_brackets(tmp_path: Path, capsys) -> N
     err = capsys.readouterr()
     assert code == 2
     assert "nerf.train.steps" in err.err and "(got 'a[b]c')" in err.err, err
+
+
+@pytest.mark.parametrize("found", ["4.1.0", "3.11.1", "5.0.0"])
+def test_a_pycolmap_outside_the_declared_range_is_refused_at_start_up(
+    tmp_path: Path, video: Path, capsys, monkeypatch: pytest.MonkeyPatch, found: str
+) -> None:
+    """pycolmap 4.0 and 4.1 lack the global mapper's options the poses stage sets: a run would
+    fail minutes in, inside COLMAP; it is refused before any work, naming what to install."""
+    import importlib.metadata
+
+    real = importlib.metadata.version
+    monkeypatch.setattr(
+        importlib.metadata, "version", lambda name: found if name == "pycolmap" else real(name)
+    )
+    code, out = run_cli(capsys, "run", str(video), "--workdir", str(tmp_path / "wd"))
+    assert code == 2
+    assert_clean_failure(code, out, tmp_path / "wd", f"pycolmap {found} is installed")
+    assert "pip install 'pycolmap" in out and not (tmp_path / "wd").exists()
