@@ -350,6 +350,13 @@ class Pipeline:
         console: Console,
         quiet: bool,
     ) -> StageRecord:
+        stage = stage_cls()  # the stage itself (a declared one is imported here)
+        config = configs[stage_cls.name]
+        if not isinstance(config, type(stage).Config):
+            raise TypeError(
+                f"stage {stage_cls.name} was given a {type(config).__name__}; it takes its "
+                f"Config, {type(stage).Config.__name__}"
+            )
         final = case_dir / p.folder
         tmp = temp_dir_for(final, p.key)
         for stale in stale_temps(final, keep=tmp):
@@ -357,14 +364,13 @@ class Pipeline:
         if tmp.exists() and not stage_cls.resumable:
             shutil.rmtree(tmp)
         tmp.mkdir(parents=True, exist_ok=True)
-        inputs = {n: case_dir / self.folder_name(n) for n in stage_cls.needs}
         ctx = StageContext(
             case_dir=case_dir,
             out=tmp,
-            config=configs[stage_cls.name],
+            config=config,
             case=case,
-            inputs=inputs,
-            resolve_view=lambda name, folder: self.by_name[name].view(folder),
+            inputs={n: case_dir / self.folder_name(n) for n in stage_cls.needs},
+            views={n: self.by_name[n].View for n in stage_cls.needs},
             console=console,
             quiet=quiet,
         )
@@ -372,7 +378,8 @@ class Pipeline:
         t0, cpu0 = time.perf_counter(), time.process_time()
         try:
             with PeakMemory() as mem:
-                summary = stage_cls().run(ctx)
+                summary = stage.run(ctx)
+            check_summary(type(stage), summary)
         except BaseException:
             if not stage_cls.resumable:
                 shutil.rmtree(tmp, ignore_errors=True)
@@ -449,6 +456,16 @@ class Pipeline:
                     shutil.rmtree(path)
                     removed.append(path.name)
         return removed
+
+
+def check_summary(stage: type[Stage], summary: object) -> None:
+    """`run` returned the stage's own `Summary`: anything else would land in the manifest as a
+    shape its view cannot read back."""
+    if not isinstance(summary, stage.Summary):
+        raise TypeError(
+            f"stage {stage.name}: run returned {type(summary).__name__}, not its Summary "
+            f"{stage.Summary.__name__}; nothing was published"
+        )
 
 
 def _save_record(path: Path, record: RunRecord) -> None:

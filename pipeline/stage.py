@@ -1,5 +1,5 @@
-"""The stage contract (docs/architecture.md): a named step with upstream needs, a version and
-a typed config.
+"""The stage contract (docs/architecture.md): a named step with upstream needs, a version, and
+its types: the config it takes, the summary it returns and the view that reads its folder.
 
 A stage writes only into `ctx.out` (a temporary folder); the runner publishes it atomically.
 """
@@ -7,10 +7,10 @@ A stage writes only into `ctx.out` (a temporary folder); the runner publishes it
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, Generic, TypeVar, cast
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 from rich.console import Console
@@ -78,38 +78,75 @@ class CaseInfo(BaseModel):
         return cls.model_validate_json((case_dir / "case.json").read_text())
 
 
-class StageContext:
-    """What a running stage may touch: its config, its temporary output folder, its inputs."""
+C = TypeVar("C", bound=StageConfig)
+V = TypeVar("V")
+
+
+class StageContext(Generic[C]):
+    """What a running stage may touch: its config, its temporary output folder, its inputs.
+
+    Generic in the stage's config (`StageContext[DepthConfig]`), so `ctx.config` has the
+    stage's own type; the runner checks that it is an instance of the stage's `Config`.
+    """
 
     def __init__(
         self,
         *,
         case_dir: Path,
         out: Path,
-        config: StageConfig,
+        config: C,
         case: CaseInfo,
-        inputs: dict[str, Path],
-        resolve_view: Callable[[str, Path], Any],
+        inputs: Mapping[str, Path],
+        views: Mapping[str, type[Any]],
         console: Console,
         quiet: bool = False,
     ) -> None:
+        """`inputs`: the published folder of each stage in `needs`; `views`: that stage's
+        `View` class, which `input` opens the folder with."""
+        missing = sorted(set(inputs) - set(views))
+        if missing:
+            raise ValueError(f"no view class given for the input(s) {', '.join(missing)}")
         self.case_dir = case_dir
         self.out = out
-        self.config = config
+        self.config: C = config
         self.case = case
-        self._inputs = inputs
-        self._resolve_view = resolve_view
+        self._inputs = dict(inputs)
+        self._views = {name: views[name] for name in inputs}
+        self._opened: dict[str, Any] = {}
         self.console = console
         self.quiet = quiet
 
-    def input(self, stage_name: str) -> Any:
-        """A typed view of an upstream stage's published outputs (only stages in `needs`)."""
-        if stage_name not in self._inputs:
-            raise KeyError(f"stage input {stage_name!r} is not among this stage's needs")
-        return self._resolve_view(stage_name, self._inputs[stage_name])
+    def input(self, view: type[V]) -> V:
+        """The view of the stage in `needs` whose `View` is `view` (or a subclass of it), opened
+        on its published folder. Keyed by the view class, not the stage class, so a stage
+        imports only its inputs' views, never their stage modules (and what those import)."""
+        names = [n for n, cls in self._views.items() if issubclass(cls, view)]
+        if len(names) != 1:
+            offered = ", ".join(f"{n} ({cls.__name__})" for n, cls in self._views.items())
+            why = "several stages it needs have it" if names else "no stage it needs has it"
+            raise LookupError(
+                f"this stage asked for {view.__name__}, but {why}; its needs: {offered or 'none'}"
+            )
+        return cast(V, self._open(names[0]))
+
+    def input_by_name(self, stage_name: str) -> Any:
+        """The view of upstream stage `stage_name` (one of `needs`), untyped: for a stage that
+        reads all its inputs alike (the report). Others use `input(ViewClass)`."""
+        self.input_dir(stage_name)
+        return self._open(stage_name)
 
     def input_dir(self, stage_name: str) -> Path:
+        """The published folder of upstream stage `stage_name` (one of `needs`)."""
+        if stage_name not in self._inputs:
+            needs = ", ".join(self._inputs) or "none"
+            raise LookupError(f"{stage_name!r} is not among this stage's needs ({needs})")
         return self._inputs[stage_name]
+
+    def _open(self, name: str) -> Any:
+        """The view of input `name`, opened once: a view only reads, so one serves every call."""
+        if name not in self._opened:
+            self._opened[name] = self._views[name](self._inputs[name])
+        return self._opened[name]
 
     def log(self, message: str) -> None:
         if not self.quiet:
@@ -138,23 +175,34 @@ class StageContext:
             yield advance
 
 
+#: The base summary model, by a name the `Stage.Summary` attribute does not shadow.
+BaseSummary = Summary
+
+
 class Stage:
-    """Base class. Subclasses set `name`, `needs`, `version`, `Config`, and implement `run`."""
+    """Base class. Subclasses set `name`, `needs`, `version`, `Config`, `Summary` and `View` as
+    plain class attributes (pipeline/declared.py reads them from the source, without importing
+    the stage) and implement `run(ctx)`, which writes only under `ctx.out` and returns an
+    instance of `Summary`."""
 
     name: ClassVar[str]
     needs: ClassVar[tuple[str, ...]] = ()
     version: ClassVar[int] = 1
     Config: ClassVar[type[StageConfig]] = StageConfig
+    #: the pydantic model `run` returns (the runner refuses anything else)
+    Summary: ClassVar[type[BaseSummary]] = BaseSummary
+    #: the only reader of the published folder, `View(folder)`; by default the folder itself
+    View: ClassVar[type[Any]] = Path
     #: A resumable stage keeps its temporary folder after a crash so a re-run can continue.
     resumable: ClassVar[bool] = False
 
-    def run(self, ctx: StageContext) -> Summary:  # pragma: no cover - abstract
+    def run(self, ctx: StageContext[Any]) -> BaseSummary:  # pragma: no cover - abstract
         raise NotImplementedError
 
     @classmethod
     def view(cls, folder: Path) -> Any:
-        """Typed access to this stage's published folder; default: the folder itself."""
-        return folder
+        """This stage's `View` of its published `folder`."""
+        return cls.View(folder)
 
     @classmethod
     def describe(cls) -> str:

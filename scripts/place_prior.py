@@ -20,7 +20,7 @@ from endopipe.cli import build_pipeline
 from endopipe.pipeline.cache import MANIFEST, Manifest, list_files
 from endopipe.recording.cameras import cameras_by_source
 from endopipe.recording.join import fit_similarity, junction_error_pct
-from endopipe.stages.centerline.prior import LumenPrior
+from endopipe.stages.centerline.prior import load_prior, save_prior
 
 
 def main() -> None:
@@ -39,8 +39,8 @@ def main() -> None:
     manifest = Manifest.load(folder)
     if manifest is None:
         raise SystemExit(f"{folder} holds no finished centerline stage")
-    prior = LumenPrior.load(args.source / "03_centerline" / "prior.npz")
-    prior.moved(sim.s, np.array(sim.R), np.array(sim.t)).save(folder / "prior.npz")
+    prior = load_prior(args.source / "03_centerline" / "prior.npz")
+    save_prior(prior.moved(sim.s, np.array(sim.R), np.array(sim.t)), folder / "prior.npz")
     manifest.files = list_files(folder)
     (folder / MANIFEST).write_text(manifest.model_dump_json(indent=2))
     print(

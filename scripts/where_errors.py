@@ -78,14 +78,14 @@ def depth_report(ingest: IngestView, depth: DepthView, gt) -> None:
 def mesh_report(case: Path, ingest: IngestView, poses: PosesView, depth: DepthView, gt) -> None:
     view = MeshView(case / "06_mesh")
     metrics = view.metrics
-    if not view.evaluated or metrics.get("aligned") != "gt_frame":
+    if metrics is None or not metrics.evaluated or metrics.aligned != "gt_frame":
         print("mesh: not evaluated in the truth's frame (metric poses needed)")
         return
     truth_poses = poses_by_frame(gt, ingest.frames)
     frames = [i for i in poses.registered if i in truth_poses]
     cams = [np.asarray(truth_poses[i], np.float64) for i in frames]
     truth_mesh, ours = read_mesh(ground_truth_mesh(gt)), view.load()
-    k, max_depth, radius = poses.intrinsics, metrics["crop_max_depth"], metrics["mean_radius"]
+    k, max_depth, radius = poses.intrinsics, metrics.crop_max_depth, metrics.mean_radius
     near = faces_near_cameras(truth_mesh.vertices, truth_mesh.faces, cams, k, max_depth)
     pts = sample_surface(truth_mesh.vertices, near, 200_000, 1)
     seen = visible_from_cameras(pts, cams, k, max_depth, truth_mesh.vertices, near, ingest.fov())
@@ -95,7 +95,7 @@ def mesh_report(case: Path, ingest: IngestView, poses: PosesView, depth: DepthVi
     _, nearest = cKDTree(np.array([c[:3, 3] for c in cams])).query(pts)
     at_end = missed & (nearest == len(cams) - 1)
     print(
-        f"mesh: completeness {dist.mean():.3f} (accuracy {metrics['accuracy']:.3f}); "
+        f"mesh: completeness {dist.mean():.3f} (accuracy {metrics.accuracy:.3f}); "
         f"{missed.mean():.1%} of the truth's points lie over 0.1 radius from ours and carry "
         f"{dist[missed].sum() / dist.sum():.1%} of it; {at_end.sum() / max(missed.sum(), 1):.0%} "
         "of those lie nearest the last camera"

@@ -19,10 +19,11 @@ from endopipe.stages.camera import Camera, backproject
 from endopipe.stages.centerline.cavity import fit_cavity
 from endopipe.stages.centerline.config import CenterlineConfig
 from endopipe.stages.centerline.evaluate import compare_to_truth
-from endopipe.stages.centerline.prior import EllipsoidPrior, LumenPrior, TubePrior
+from endopipe.stages.centerline.prior import EllipsoidPrior, LumenPrior, TubePrior, save_prior
 from endopipe.stages.centerline.stage import Centerline
 from endopipe.stages.centerline.tube import fit_tube
 from endopipe.stages.centerline.view import CenterlineView
+from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.io.ground_truth import GroundTruth
 from endopipe.stages.poses.view import CamerasFile, PosesView
 
@@ -156,7 +157,7 @@ def test_view_reads_back_a_cavity_and_its_prior(tmp_path: Path) -> None:
     write_json(tmp_path / "centerline.json", fit.to_file("mm").model_dump(exclude_none=True))
     with pytest.raises(EndopipeError, match="re-run the centerline stage"):
         CenterlineView(tmp_path).prior()
-    fit.prior().save(tmp_path / "prior.npz")
+    save_prior(fit.prior(), tmp_path / "prior.npz")
     view = CenterlineView(tmp_path)
     assert view.kind == "cavity" and view.units == "mm"
     np.testing.assert_allclose(view.points, fit.points, atol=1e-6)
@@ -202,7 +203,7 @@ def write_poses_folder(
 
 
 def synth_case(root: Path, frames: int, width: int, height: int, seed: int) -> Path:
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     case = root / f"colon_{frames}_{width}x{height}_{seed}"
     cfg = SynthConfig(seed=seed, frames=frames, width=width, height=height, specular=False)
@@ -230,7 +231,12 @@ def test_synth_colon_from_a_poses_folder(small_colon: Path, tmp_path: Path) -> N
     assert scores["radius_error_pct"] <= BOUND_PCT
 
 
-class _NoNames:
+class _NoNames(IngestView):
+    """An ingest stand-in with no frame names (the poses folder holds no sparse model)."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+
     def index_by_name(self) -> dict[str, int]:
         return {}
 
@@ -252,7 +258,7 @@ def test_stage_run_writes_outputs(small_colon: Path, tmp_path: Path) -> None:
         ),
         inputs={"ingest": folder, "poses": folder},
         # no sparse model in this folder: frame names are not needed (nearest-camera rays)
-        resolve_view=lambda name, f: PosesView(f) if name == "poses" else _NoNames(),
+        views={"ingest": _NoNames, "poses": PosesView},
         console=Console(quiet=True),
         quiet=True,
     )

@@ -57,4 +57,28 @@ def test_planning_pipeline_reads_what_the_stage_classes_say() -> None:
             cls.Config,
             cls.describe(),
         )
+        assert (declared.Summary, declared.View) == (cls.Summary, cls.View)
         assert declared.load() is cls
+
+
+VIEW_PROBE = """
+import json, sys
+from endopipe.cli import planning_pipeline
+stages = planning_pipeline().by_name
+views = {name: stages[name].View.__name__ for name in ("poses", "nerf", "depth")}
+print(json.dumps({"views": views, "stage_modules": sorted(
+    m for m in sys.modules if m.startswith("endopipe.stages.") and m.endswith(".stage")
+), "torch": "torch" in sys.modules}))
+"""
+
+
+def test_a_declared_stage_gives_its_view_without_importing_the_stage() -> None:
+    """Commands that only read folders (status, bench, batch) open views, not stage modules:
+    the NeRF's would import torch and the training code."""
+    proc = subprocess.run(
+        [sys.executable, "-c", VIEW_PROBE], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert got["views"] == {"poses": "PosesView", "nerf": "NerfView", "depth": "DepthView"}
+    assert got == {"views": got["views"], "stage_modules": [], "torch": False}

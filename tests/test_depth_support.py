@@ -6,7 +6,7 @@ import numpy as np
 
 from endopipe.stages.camera import Camera
 from endopipe.stages.depth.support import consistent_views
-from endopipe.stages.poses.view import past_fitted_radius
+from endopipe.stages.poses.lens import past_fitted_radius
 
 CAMERA = Camera(width=80, height=64, fx=60.0, fy=60.0, cx=39.5, cy=31.5)
 WALL_Z = 10.0

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 from filelock import FileLock
 from pydantic import Field
+from rich.console import Console
 
 from endopipe.pipeline.cache import digest_text
 from endopipe.pipeline.config import load_config
@@ -26,13 +27,26 @@ class ASummary(Summary):
     value: int
 
 
+class AView:
+    """a's folder: the number it wrote."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+
+    @property
+    def value(self) -> int:
+        return int((self.folder / "a.txt").read_text())
+
+
 class A(Stage):
     """Writes a number."""
 
     name = "a"
     Config = AConfig
+    Summary = ASummary
+    View = AView
 
-    def run(self, ctx: StageContext) -> ASummary:
+    def run(self, ctx: StageContext[AConfig]) -> ASummary:
         CALLS.append("a")
         (ctx.out / "a.txt").write_text(str(ctx.config.value))
         return ASummary(value=ctx.config.value)
@@ -42,16 +56,24 @@ class BConfig(StageConfig):
     fail: bool = Field(False, description="Raise halfway through, after writing a file.")
 
 
+class BView:
+    """b's folder: the doubled number."""
+
+    def __init__(self, folder: Path) -> None:
+        self.value = int((folder / "b.txt").read_text())
+
+
 class B(Stage):
     """Doubles a's number."""
 
     name = "b"
     needs = ("a",)
     Config = BConfig
+    View = BView
 
-    def run(self, ctx: StageContext) -> Summary:
+    def run(self, ctx: StageContext[BConfig]) -> Summary:
         CALLS.append("b")
-        v = int((ctx.input("a") / "a.txt").read_text())
+        v = ctx.input(AView).value
         (ctx.out / "b.txt").write_text(str(2 * v))
         if ctx.config.fail:
             raise RuntimeError("boom")
@@ -64,9 +86,9 @@ class C(Stage):
     name = "c"
     needs = ("b",)
 
-    def run(self, ctx: StageContext) -> Summary:
+    def run(self, ctx: StageContext[StageConfig]) -> Summary:
         CALLS.append("c")
-        v = int((ctx.input("b") / "b.txt").read_text())
+        v = ctx.input(BView).value
         (ctx.out / "c.txt").write_text(str(v + 1))
         return Summary()
 
@@ -198,3 +220,75 @@ def test_status_of_a_case_run_before_configs_were_recorded(case: Path) -> None:
     run(case, "a.value=5")
     (case / "config.yaml").unlink()  # as an older endopipe left it: each manifest's config
     assert all(p.fresh for p in PIPE.status(case))
+
+
+class AsksForB(Stage):
+    """Needs a, asks for b's view."""
+
+    name = "d"
+    needs = ("a",)
+
+    def run(self, ctx: StageContext[StageConfig]) -> Summary:
+        CALLS.append("d")
+        ctx.input(BView)
+        return Summary()
+
+
+class WrongSummary(Stage):
+    """Returns a's summary instead of its own."""
+
+    name = "d"
+    needs = ("a",)
+    Summary = ASummary
+
+    def run(self, ctx: StageContext[StageConfig]) -> Summary:
+        (ctx.out / "d.txt").write_text("written")
+        return Summary()
+
+
+def test_input_refuses_a_view_no_needed_stage_has(case: Path) -> None:
+    pipe = Pipeline([A, B, AsksForB])
+    configs = load_config(pipe.stages, use_default_file=False)
+    with pytest.raises(
+        LookupError, match=r"asked for BView, but no stage it needs has it; its needs: a \(AView\)"
+    ):
+        pipe.run(case, configs, quiet=True)
+    assert not (case / "03_d").exists() and not list(case.glob(".03_d.tmp-*"))
+
+
+def test_input_opens_the_needed_stage_by_its_view_class(tmp_path: Path) -> None:
+    (tmp_path / "a.txt").write_text("7")
+    ctx = StageContext(
+        case_dir=tmp_path,
+        out=tmp_path / "out",
+        config=BConfig(),
+        case=CaseInfo(name="c", input="x", kind="video", input_digest="0"),
+        inputs={"a": tmp_path},
+        views={"a": AView},
+        console=Console(quiet=True),
+    )
+    view = ctx.input(AView)
+    assert isinstance(view, AView) and view.value == 7
+    assert ctx.input(AView) is view  # opened once
+    assert ctx.input_by_name("a") is view and ctx.input_dir("a") == tmp_path
+    with pytest.raises(LookupError, match="'b' is not among this stage's needs"):
+        ctx.input_by_name("b")
+
+
+def test_a_run_returning_another_summary_fails_and_publishes_nothing(case: Path) -> None:
+    pipe = Pipeline([A, WrongSummary])
+    configs = load_config(pipe.stages, use_default_file=False)
+    with pytest.raises(TypeError, match="stage d: run returned Summary, not its Summary ASummary"):
+        pipe.run(case, configs, quiet=True)
+    assert (case / "01_a").is_dir()
+    assert not (case / "02_d").exists() and not list(case.glob(".02_d.tmp-*"))
+
+
+def test_a_config_of_another_stage_is_refused_before_the_run(case: Path) -> None:
+    cfgs = configs()
+    cfgs["b"] = AConfig()
+    with pytest.raises(
+        TypeError, match="stage b was given a AConfig; it takes its Config, BConfig"
+    ):
+        PIPE.run(case, cfgs, quiet=True)
+    assert CALLS == ["a"]  # b never started

@@ -26,7 +26,7 @@ def fisheye_poses(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Camer
     from typer.testing import CliRunner
 
     from endopipe.cli import app
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     root = tmp_path_factory.mktemp("fisheye")
     src = root / "src"
@@ -45,8 +45,12 @@ def fisheye_poses(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Camer
 def test_a_folding_lens_is_refitted_as_a_fisheye_near_the_true_one(fisheye_poses) -> None:
     folder, truth = fisheye_poses
     poses = PosesView(folder)
-    summary = json.loads((folder / "manifest.json").read_text())["summary"]
-    assert summary["lens_refit"].startswith("SIMPLE_RADIAL bent back")
+    refit = json.loads((folder / "manifest.json").read_text())["summary"]["lens_refit"]
+    assert (refit["from_model"], refit["to_model"]) == ("SIMPLE_RADIAL", "OPENCV_FISHEYE")
+    assert 0 < refit["omega"] < 3 and refit["seconds"] >= 0
+    record = poses.summary.lens_refit  # read back typed, and said in words from its fields
+    assert record is not None and record.said.startswith("SIMPLE_RADIAL bent back")
+    assert f"{record.reprojection_after_px:.3f} px" in record.said
     assert poses.intrinsics.model == "fisheye" and poses.file.model == "OPENCV_FISHEYE"
     assert lens_valid_mask(poses.intrinsics).all()  # every pixel has a ray
     # Along the diagonal, out to 0.8 and 0.9 of the corner's radius: measured 2.0 and 2.5 deg

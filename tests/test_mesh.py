@@ -15,7 +15,7 @@ import trimesh
 from rich.console import Console
 
 from endopipe.stages.camera import Camera, image_directions, project
-from endopipe.stages.centerline.prior import TubePrior
+from endopipe.stages.centerline.prior import TubePrior, save_prior
 from endopipe.stages.depth.view import DepthView
 from endopipe.stages.mesh.build import fuse_depth
 from endopipe.stages.mesh.config import MeshConfig
@@ -191,7 +191,7 @@ def test_cull_unseen_drops_the_surface_behind_the_wall():
 # --- TSDF fusion of ground-truth depth on a synthetic case ------------------------------------
 @pytest.fixture(scope="module")
 def synth_case(tmp_path_factory) -> Path:
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     case = tmp_path_factory.mktemp("mesh") / "case"
     generate_case(case, SynthConfig(seed=0, frames=16, width=160, height=128, specular=False))
@@ -392,7 +392,7 @@ def test_stage_run_writes_mesh_and_metrics(synth_case, tmp_path):
     cl.mkdir()
     points, radii = GroundTruth(synth_case / "gt").centerline()
     prior = TubePrior(points, radii)
-    prior.save(cl / "prior.npz")
+    save_prior(prior, cl / "prior.npz")
     arclen = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
     (cl / "centerline.json").write_text(
         json.dumps(
@@ -433,7 +433,7 @@ def test_stage_run_writes_mesh_and_metrics(synth_case, tmp_path):
             gt_dir=str(synth_case / "gt"),
         ),
         inputs=inputs,
-        resolve_view=lambda name, folder: views[name](folder) if name in views else folder,
+        views=views,
         console=Console(quiet=True),
         quiet=True,
     )
@@ -443,18 +443,15 @@ def test_stage_run_writes_mesh_and_metrics(synth_case, tmp_path):
     assert summary.vertices > 1000 and summary.faces > 1000
     view = MeshView(out)
     assert view.mesh_path.is_file() and view.obj_path is not None
-    for key in (
-        "chamfer",
-        "chamfer_pct_radius",
-        "accuracy",
-        "completeness",
-        "fscore",
-        "threshold",
-        "aligned",
-    ):
-        assert key in view.metrics
-    bands = view.metrics["by_camera_distance"]  # written as JSON: the open band's end is null
+    metrics = view.metrics
+    assert metrics is not None and metrics.evaluated and metrics.aligned == "gt_frame"
+    assert metrics.chamfer == pytest.approx(summary.chamfer)
+    assert None not in (metrics.accuracy, metrics.completeness, metrics.fscore, metrics.threshold)
+    written = json.loads((out / "metrics.json").read_text())
+    assert {"chamfer", "chamfer_pct_radius", "accuracy", "fscore", "aligned"} <= set(written)
+    bands = written["by_camera_distance"]  # written as JSON: the open band's end is null
     assert bands[-1]["to"] is None and sum(b["gt_share"] for b in bands) == pytest.approx(1.0)
+    assert [b.from_ for b in metrics.by_camera_distance] == [b["from"] for b in bands]
     loaded = view.load()
     assert len(loaded.faces) == summary.faces
     assert loaded.colours is not None  # from the ingest frames

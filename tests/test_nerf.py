@@ -15,6 +15,7 @@ import pytest
 import torch
 
 from endopipe.stages.camera import Camera, pixel_rays
+from endopipe.stages.centerline.prior import save_prior
 from endopipe.stages.metrics.depth import depth_errors, depth_frame_metrics, depth_sequence_metrics
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.data import holdout_split
@@ -302,19 +303,27 @@ def test_stage_resumes_after_a_kill(tmp_path, monkeypatch):
     from endopipe.pipeline.config import load_config
     from endopipe.pipeline.runner import Pipeline
     from endopipe.pipeline.stage import Stage, Summary
+    from endopipe.stages.centerline.view import CenterlineView
     from endopipe.stages.ingest.stage import Ingest
     from endopipe.stages.nerf import train as train_mod
     from endopipe.stages.nerf.stage import Nerf
     from endopipe.stages.poses.stage import Poses
+
+    class PriorOnly(CenterlineView):
+        """The stand-in's folder: prior.npz and nothing else."""
+
+        def __init__(self, folder: Path) -> None:
+            self.folder = Path(folder)
 
     class Centerline(Stage):
         """Test stand-in: the known tube as prior.npz."""
 
         name = "centerline"
         needs = ("poses",)
+        View = PriorOnly
 
         def run(self, ctx):
-            tube_prior().save(ctx.out / "prior.npz")
+            save_prior(tube_prior(), ctx.out / "prior.npz")
             return Summary()
 
     write_case(tmp_path / "case")
@@ -379,9 +388,9 @@ def test_synthetic_colon_accuracy(tmp_path):
     """Default config, GT poses, a 60-frame 320x256 synthetic colon: held-out depth AbsRel <=
     0.10 and delta < 1.25 >= 0.90 with per-frame median scaling."""
     from endopipe.cli import all_stages, prepare_case
-    from endopipe.commands.synth import SynthConfig, generate_case
     from endopipe.pipeline.config import load_config
     from endopipe.pipeline.runner import Pipeline
+    from endopipe.synth import SynthConfig, generate_case
 
     generate_case(tmp_path / "colon", SynthConfig(frames=60, width=320, height=256))
     stages = [s for s in all_stages() if s.name in ("ingest", "poses", "centerline", "nerf")]

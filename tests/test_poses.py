@@ -81,7 +81,7 @@ def assert_one_line_failure(code: int, output: str, expect: str) -> None:
 
 @pytest.fixture(scope="module")
 def colon(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     out = tmp_path_factory.mktemp("synth") / "colon"
     generate_case(out, SynthConfig(seed=0, frames=20, width=320, height=256))
@@ -122,7 +122,7 @@ def test_the_summary_says_how_much_of_the_field_of_view_the_lens_reaches(colon_r
     """The synthetic colon's pinhole reaches every pixel; a SIMPLE_RADIAL lens with C3VD's
     k1 = -0.12 at f = 100 px bends back 111 px from the centre, and the share it reaches is the
     share of the field of view inside that circle."""
-    from endopipe.stages.poses.stage import lens_reach
+    from endopipe.stages.poses.lens import lens_reach
 
     assert summary(colon_run)["lens_reach"] == 1.0
     ingest = IngestView(colon_run / "01_ingest")
@@ -352,9 +352,9 @@ def test_source_gt_reproduces_the_ground_truth_exactly(colon: Path, tmp_path: Pa
 def test_source_gt_triangulates_points_on_the_wall(tmp_path: Path) -> None:
     """Known poses: points triangulated from them lie on the true wall, and the centerline stage
     measures the radius from them instead of falling back to its default."""
-    from endopipe.commands.synth import SynthConfig, generate_case
     from endopipe.stages.io.ground_truth import GroundTruth
     from endopipe.stages.surface.evaluate import point_to_surface
+    from endopipe.synth import SynthConfig, generate_case
 
     case = tmp_path / "small"
     generate_case(case, SynthConfig(seed=0, frames=16, width=160, height=128))
@@ -603,7 +603,7 @@ def test_file_images_are_matched_to_frames_by_number(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_synthetic_colon_60_frames(tmp_path: Path) -> None:
-    from endopipe.commands.synth import SynthConfig, generate_case
+    from endopipe.synth import SynthConfig, generate_case
 
     generate_case(tmp_path / "colon60", SynthConfig(seed=0, frames=60, width=320, height=256))
     code, _ = run(None, tmp_path / "colon60", tmp_path / "wd")

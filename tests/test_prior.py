@@ -10,7 +10,12 @@ import pytest
 import torch
 
 from endopipe.stages.camera import look_at
-from endopipe.stages.centerline.prior import EllipsoidPrior, LumenPrior, TubePrior
+from endopipe.stages.centerline.prior import (
+    EllipsoidPrior,
+    TubePrior,
+    load_prior,
+    save_prior,
+)
 
 RHO, R = 60.0, 15.0  # circular-arc centre line of radius RHO in the z = 0 plane, tube radius R
 ARC = np.pi / 1.5
@@ -194,16 +199,16 @@ def test_ellipsoid_prior() -> None:
 
 def test_save_load_round_trip(tmp_path) -> None:
     tube = arc_tube(open_ends=True, radius=np.linspace(10, 15, 300))
-    tube.save(tmp_path / "prior.npz")
-    back = LumenPrior.load(tmp_path / "prior.npz")
+    save_prior(tube, tmp_path / "prior.npz")
+    back = load_prior(tmp_path / "prior.npz")
     assert isinstance(back, TubePrior) and back.open_ends
     x = torch.tensor(np.random.default_rng(6).uniform(-80, 80, (1000, 3)))
     np.testing.assert_allclose(back.signed_distance(x).numpy(), tube.signed_distance(x).numpy())
     ell = EllipsoidPrior([0, 0, 0], [3, 2, 1])
     assert ell.typical_radius == pytest.approx(6 ** (1 / 3))  # its own radius
     ell.unit = 0.5  # a forced prior that fits badly: the scale of the shape that fits
-    ell.save(tmp_path / "cavity.npz")
-    back = LumenPrior.load(tmp_path / "cavity.npz")
+    save_prior(ell, tmp_path / "cavity.npz")
+    back = load_prior(tmp_path / "cavity.npz")
     assert isinstance(back, EllipsoidPrior)
     np.testing.assert_allclose(back.axes, [3, 2, 1])
     assert back.typical_radius == 0.5 and back.own_radius == pytest.approx(6 ** (1 / 3))

@@ -21,7 +21,7 @@ from endopipe.stages.centerline.choose import (
     score_prior,
 )
 from endopipe.stages.centerline.config import CenterlineConfig
-from endopipe.stages.centerline.prior import FreePrior, LumenPrior
+from endopipe.stages.centerline.prior import FreePrior, LumenPrior, load_prior, save_prior
 from endopipe.stages.centerline.tube import fit_tube
 from endopipe.stages.nerf.bounds import PriorBounds
 from endopipe.stages.nerf.config import NerfConfig
@@ -145,8 +145,8 @@ def test_sampling_reaches_past_a_wall_that_fits_only_some_points(tmp_path: Path)
     seen[700:] = o[700:] + 3 * (wall[700:] - o[700:])
     tube.margin = reaching_margin(tube, o, seen, 0.9)
     assert abs(tube.margin - 2.0) < 0.05
-    tube.save(tmp_path / "prior.npz")
-    back = LumenPrior.load(tmp_path / "prior.npz")
+    save_prior(tube, tmp_path / "prior.npz")
+    back = load_prior(tmp_path / "prior.npz")
     assert back.margin == tube.margin
     cfg = NerfConfig()
     box = SceneBox(np.zeros(3), np.eye(3), 1.0, np.full(3, -100.0), np.full(3, 100.0))
@@ -177,8 +177,8 @@ def test_the_empty_core_shrinks_to_leave_out_tissue_the_points_place_inside_it(
         float(tube.in_core(torch.as_tensor(pts, dtype=torch.float32), limit).float().mean()) <= 0.02
     )
     tube.core_limit = limit
-    tube.save(tmp_path / "prior.npz")
-    assert LumenPrior.load(tmp_path / "prior.npz").core_limit == limit
+    save_prior(tube, tmp_path / "prior.npz")
+    assert load_prior(tmp_path / "prior.npz").core_limit == limit
     assert empty_core(tube, pts, 0.1) > 0.9  # a tolerance above the 8% inside
 
 
@@ -196,8 +196,8 @@ def test_reach_is_per_frame_and_free_prior_rays_reach_it(tmp_path: Path) -> None
     np.testing.assert_allclose((far * d.norm(dim=-1)).numpy(), 1.25 * reach, rtol=1e-5)
     assert (near * d.norm(dim=-1) < 1.0).all()
     assert not prior.in_core(torch.zeros(4, 3)).any()
-    prior.save(tmp_path / "prior.npz")
-    back = LumenPrior.load(tmp_path / "prior.npz")
+    save_prior(prior, tmp_path / "prior.npz")
+    back = load_prior(tmp_path / "prior.npz")
     assert isinstance(back, FreePrior) and back.weight == 0.0
     assert back.reach == prior.reach and back.depth == 30.0 and back.typical_radius == 5.0
 

@@ -164,6 +164,41 @@ def test_a_summary_that_does_not_validate_is_named_not_blanked(case_copy: Path) 
     assert "re-run with --from" not in visible_text(page.replace(section_html(page, "depth"), ""))
 
 
+def test_a_lens_refit_is_said_from_its_fields_and_an_old_sentence_is_refused(
+    case_copy: Path,
+) -> None:
+    """The poses summary records a re-fitted lens as fields; the page says it in the one
+    sentence `LensRefit.said` makes (the log's too). A manifest from before, with the sentence
+    itself, does not validate: the poses section names it instead of showing it."""
+    from endopipe.stages.poses.lens import LensRefit
+
+    refit = LensRefit(
+        from_model="SIMPLE_RADIAL",
+        to_model="OPENCV_FISHEYE",
+        omega=1.234,
+        focal_px=101.5,
+        reprojection_before_px=0.812,
+        reprojection_after_px=0.795,
+        widest_deg=71.25,
+        seconds=1.5,
+    )
+    manifest = folders_of(case_copy)["poses"] / "manifest.json"
+    written = json.loads(manifest.read_text())
+    written["summary"]["lens_refit"] = refit.model_dump(mode="json")
+    manifest.write_text(json.dumps(written))
+    page, info = render_report(case_copy, folders_of(case_copy), FAST)
+    poses = visible_text(section_html(page, "poses"))
+    assert info.sections["poses"]
+    assert f"Lens re-fitted {refit.said}" in poses
+    assert "reprojection 0.812 -> 0.795 px, the farthest pixel at 71.2 deg" in refit.said
+
+    written["summary"]["lens_refit"] = f"SIMPLE_RADIAL {refit.said}"
+    manifest.write_text(json.dumps(written))
+    page, info = render_report(case_copy, folders_of(case_copy), FAST)
+    assert not info.sections["poses"]
+    assert "re-run with --from poses" in visible_text(section_html(page, "poses"))
+
+
 def test_report_says_which_metrics_are_missing(case_copy: Path) -> None:
     (folders_of(case_copy)["depth"] / "metrics.json").unlink()
     (folders_of(case_copy)["mesh"] / "metrics.json").unlink()
@@ -221,7 +256,7 @@ def test_report_stage_writes_one_html_file(tiny_case: Path, tmp_path: Path) -> N
         config=ReportConfig(max_preview_frames=2, mesh_views=1),
         case=CaseInfo.load(tiny_case),
         inputs=folders_of(tiny_case),
-        resolve_view=lambda name, folder: PIPELINE.by_name[name].view(folder),
+        views={name: PIPELINE.by_name[name].View for name in STAGES},
         console=Console(quiet=True),
         quiet=True,
     )
@@ -468,7 +503,7 @@ def test_mesh_log_and_report_give_the_same_vertex_count(tiny_case: Path, tmp_pat
         config=MeshConfig(evaluate=False),
         case=CaseInfo.load(tiny_case),
         inputs={n: folders_of(tiny_case)[n] for n in Mesh.needs},
-        resolve_view=lambda name, folder: PIPELINE.by_name[name].view(folder),
+        views={n: PIPELINE.by_name[n].View for n in Mesh.needs},
         console=console,
         quiet=False,
     )

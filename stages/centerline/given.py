@@ -19,7 +19,7 @@ from pydantic import BaseModel, Field
 from endopipe.pipeline.errors import ConfigError
 from endopipe.pipeline.stage import write_json
 from endopipe.stages.camera import umeyama
-from endopipe.stages.centerline.prior import LumenPrior
+from endopipe.stages.centerline.prior import LumenPrior, load_prior, save_prior
 from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.poses.view import PosesView
 
@@ -37,7 +37,7 @@ class GivenCameras(BaseModel):
 def write_given_prior(folder: Path, prior: LumenPrior, centres: dict[int, np.ndarray]) -> None:
     """prior.npz and cameras.json into `folder` (made if missing)."""
     folder.mkdir(parents=True, exist_ok=True)
-    prior.save(folder / PRIOR_FILE)
+    save_prior(prior, folder / PRIOR_FILE)
     cams = GivenCameras(centres={int(k): [float(x) for x in c] for k, c in centres.items()})
     write_json(folder / CAMERAS_FILE, cams.model_dump(mode="json"))
 
@@ -49,7 +49,7 @@ def place_given_prior(
     cameras lie after the move (RMS, % of their path)."""
     try:
         given = GivenCameras.model_validate_json((folder / CAMERAS_FILE).read_text())
-        prior = LumenPrior.load(folder / PRIOR_FILE)
+        prior = load_prior(folder / PRIOR_FILE)
     except (OSError, ValueError) as e:
         raise ConfigError(
             f"centerline.given_prior: {folder} holds no readable prior.npz and cameras.json "

@@ -29,7 +29,7 @@ from endopipe.stages.centerline.config import CenterlineConfig
 from endopipe.stages.centerline.evaluate import compare_to_truth
 from endopipe.stages.centerline.given import place_given_prior
 from endopipe.stages.centerline.plot import plot_centerline
-from endopipe.stages.centerline.prior import FreePrior, LumenPrior
+from endopipe.stages.centerline.prior import FreePrior, LumenPrior, save_prior
 from endopipe.stages.centerline.summary import CenterlineSummary
 from endopipe.stages.centerline.tube import fit_tube
 from endopipe.stages.centerline.view import (
@@ -51,14 +51,12 @@ class Centerline(Stage):
     needs = ("ingest", "poses")
     version = 6  # 6: the widest empty core the SfM points allow (prior.npz `core_limit`)
     Config = CenterlineConfig
+    Summary = CenterlineSummary
+    View = CenterlineView
 
-    @classmethod
-    def view(cls, folder: Path) -> CenterlineView:
-        return CenterlineView(folder)
-
-    def run(self, ctx: StageContext) -> CenterlineSummary:
-        cfg: CenterlineConfig = ctx.config  # type: ignore[assignment]
-        poses: PosesView = ctx.input("poses")
+    def run(self, ctx: StageContext[CenterlineConfig]) -> CenterlineSummary:
+        cfg = ctx.config
+        poses = ctx.input(PosesView)
         centres = poses.centres()
         if len(centres) == 0:
             raise StageFailed("centerline: no registered cameras in 02_poses")
@@ -69,7 +67,7 @@ class Centerline(Stage):
             "tube": fit_tube(centres, view_dirs, points, cfg, metric=poses.metric),
             "cavity": fit_cavity(centres, view_dirs, points, cfg, metric=poses.metric),
         }
-        frames, origins, seen = observation_rays(ctx.input("ingest"), poses, points)
+        frames, origins, seen = observation_rays(ctx.input(IngestView), poses, points)
         candidates = {k: f.prior(cfg.far_radii) for k, f in fits.items()}
         choice = choose_prior(
             candidates,
@@ -115,13 +113,13 @@ class Centerline(Stage):
                 )
         reason = choice.reason
         if cfg.given_prior:
-            prior, apart = place_given_prior(Path(cfg.given_prior), ctx.input("ingest"), poses)
+            prior, apart = place_given_prior(Path(cfg.given_prior), ctx.input(IngestView), poses)
             reason = (
                 f"given: the {prior.kind} of {cfg.given_prior}, placed by the shared cameras "
                 f"({apart:.2f}% of their path apart); this case's own choice: {choice.kind}"
             )
             ctx.log(f"prior: {reason}")
-        prior.save(ctx.out / PRIOR_FILE)
+        save_prior(prior, ctx.out / PRIOR_FILE)
         file = fit.to_file(units).model_dump(mode="json", exclude_none=True)
         file["kind"] = choice.kind
         write_json(ctx.out / CENTERLINE_FILE, file)

@@ -11,7 +11,7 @@ from pydantic import BaseModel
 
 from endopipe.pipeline.errors import EndopipeError
 from endopipe.pipeline.stage import read_summary
-from endopipe.stages.centerline.prior import LumenPrior
+from endopipe.stages.centerline.prior import LumenPrior, load_prior
 from endopipe.stages.centerline.summary import CenterlineSummary
 
 CENTERLINE_FILE = "centerline.json"
@@ -68,4 +68,4 @@ class CenterlineView:
         """The lumen prior (TubePrior or EllipsoidPrior) the NeRF, depth and mesh stages use."""
         if not self.prior_path.is_file():
             raise EndopipeError(f"no lumen prior at {self.prior_path}; re-run the centerline stage")
-        return LumenPrior.load(self.prior_path)
+        return load_prior(self.prior_path)

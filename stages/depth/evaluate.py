@@ -71,8 +71,8 @@ def evaluate(
     brightness guesses, scored on exactly our pixels: where the ground truth is valid, inside
     the field of view and ours has a depth, so a hole in ours is no easy pixel dropped for us
     alone (their coverage is therefore ours). `principal` is the camera's (cx, cy) on the
-    working grid (the image centre when None). The dict is metrics.json as written
-    (`DepthMetrics` reads it back)."""
+    working grid (the image centre when None). The dict is metrics.json's content, which the
+    stage writes as `DepthMetrics`."""
     metrics: dict = {}
     if gt_depths:
         inside = inside_view(ingest)
@@ -131,10 +131,3 @@ def scores_by_support(
         if any((d > 0).any() for d in ours):
             out[name] = sequence(ours, truth, [inside] * len(ids), ids)[block]
     return out
-
-
-def headline_coverage(metrics: dict) -> float | None:
-    """Ours' coverage for the stage summary: the median-scaled block's, or for a relative
-    ground truth the affine-invariant block's (the same pixels either way)."""
-    block = metrics.get("median_scaled") or metrics.get("affine_invariant") or {}
-    return block.get("coverage")

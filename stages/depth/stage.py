@@ -14,28 +14,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from endopipe.pipeline.stage import Stage, StageContext, write_json
+from endopipe.pipeline.stage import Stage, StageContext
 from endopipe.stages.camera import Camera, lens_valid_mask
 from endopipe.stages.centerline.view import CenterlineView
 from endopipe.stages.depth.config import DepthConfig
-from endopipe.stages.depth.evaluate import (
-    evaluate,
-    ground_truth_depths,
-    headline_coverage,
-    scores_by_support,
-)
+from endopipe.stages.depth.evaluate import evaluate, ground_truth_depths, scores_by_support
+from endopipe.stages.depth.metrics_file import DepthMetrics
 from endopipe.stages.depth.preview import write_preview
 from endopipe.stages.depth.renderer import FieldSight
 from endopipe.stages.depth.summary import DepthSummary
 from endopipe.stages.depth.support import write_support
-from endopipe.stages.depth.view import (
-    DEPTH_DIR,
-    METRICS_FILE,
-    OPACITY_DIR,
-    PREVIEW_FILE,
-    DepthView,
-    frame_file,
-)
+from endopipe.stages.depth.view import DEPTH_DIR, OPACITY_DIR, PREVIEW_FILE, DepthView, frame_file
 from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
@@ -52,17 +41,15 @@ class Depth(Stage):
     needs = ("ingest", "poses", "centerline", "nerf")
     version = 8  # 8: the pixels past an estimated lens's fitted radius are inferred
     Config = DepthConfig
+    Summary = DepthSummary
+    View = DepthView
 
-    @classmethod
-    def view(cls, folder: Path) -> DepthView:
-        return DepthView(folder)
-
-    def run(self, ctx: StageContext) -> DepthSummary:
-        cfg: DepthConfig = ctx.config  # type: ignore[assignment]
-        ingest: IngestView = ctx.input("ingest")
-        poses: PosesView = ctx.input("poses")
-        centerline: CenterlineView = ctx.input("centerline")
-        nerf: NerfView = ctx.input("nerf")
+    def run(self, ctx: StageContext[DepthConfig]) -> DepthSummary:
+        cfg = ctx.config
+        ingest = ctx.input(IngestView)
+        poses = ctx.input(PosesView)
+        centerline = ctx.input(CenterlineView)
+        nerf = ctx.input(NerfView)
         sight = FieldSight.open(cfg, ingest, poses, centerline, nerf)
         renderer, k, c2w, bake_s = sight.render, sight.camera, sight.c2w, sight.bake_s
         heldout = set(getattr(sight.model, "meta", {}).get("heldout", []))
@@ -94,13 +81,14 @@ class Depth(Stage):
         support = write_support(ctx.out, cfg, ingest, depths, c2w, k, beyond_lens, extrapolated)
         gt = ingest.ground_truth_for_scores(ctx.log)
         gt_depths = ground_truth_depths(gt, ingest, list(depths))
-        metrics = evaluate(gt, ingest, depths, gt_depths, rgbs, principal=(k.cx, k.cy))
+        evaluation = evaluate(gt, ingest, depths, gt_depths, rgbs, principal=(k.cx, k.cy))
         if support is not None and gt_depths:
             by = scores_by_support(gt, ingest, depths, gt_depths, support.seen_again_maps)
-            metrics["by_support"] = by or None
-        write_json(ctx.out / METRICS_FILE, metrics)
+            evaluation["by_support"] = by or None
+        metrics = DepthMetrics.model_validate(evaluation)
+        metrics.write(ctx.out)
         if cfg.preview:
-            affine = metrics.get("gt_kind") == "relative"
+            affine = metrics.gt_kind == "relative"
             write_preview(
                 ctx.out / PREVIEW_FILE,
                 ingest,
@@ -133,20 +121,20 @@ class Depth(Stage):
             ms_per_frame=ms,
             bake_s=bake_s,
             renderer=cfg.renderer,
-            gt_kind=metrics.get("gt_kind"),
-            median_scaled=metrics.get("median_scaled"),
-            sequence_scaled=metrics.get("sequence_scaled"),
-            affine_invariant=metrics.get("affine_invariant"),
-            coverage=headline_coverage(metrics),
+            gt_kind=metrics.gt_kind,
+            median_scaled=metrics.median_scaled,
+            sequence_scaled=metrics.sequence_scaled,
+            affine_invariant=metrics.affine_invariant,
+            coverage=headline.coverage if (headline := metrics.headline()) else None,
             unknown_share=unknown_px / pixels,
             hazy_share=hazy_px / pixels,
             seen_again_share=support.seen_again / pixels if support else None,
             one_view_share=support.one_view / pixels if support else None,
             inferred_share=support.inferred / pixels if support else None,
             extrapolated_share=support.extrapolated / pixels if support else None,
-            baselines=metrics.get("baselines"),
-            heldout_psnr=metrics.get("heldout_psnr"),
-            heldout_ssim=metrics.get("heldout_ssim"),
+            baselines=metrics.baselines,
+            heldout_psnr=metrics.heldout_psnr,
+            heldout_ssim=metrics.heldout_ssim,
         )
 
 

@@ -1,6 +1,6 @@
 """05_depth (docs/formats.md): depth/<index>.npy, opacity/<index>.npy, views/<index>.npy,
 inferred/<index>.npy, 16-bit PNGs, metrics.json, preview.mp4. `DepthView` is the only reader of
-the folder; `DepthMetrics` is metrics.json."""
+the folder; metrics.json is `DepthMetrics` (metrics_file.py)."""
 
 from __future__ import annotations
 
@@ -8,49 +8,21 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
 
 from endopipe.pipeline.stage import read_summary
+from endopipe.stages.depth.metrics_file import DepthMetrics
 from endopipe.stages.depth.summary import DepthSummary
-from endopipe.stages.metrics.scores import DepthScores, ProtocolScores
 
 DEPTH_DIR = "depth"
 OPACITY_DIR = "opacity"
 VIEWS_DIR = "views"
 INFERRED_DIR = "inferred"
-METRICS_FILE = "metrics.json"
 PREVIEW_FILE = "preview.mp4"
 
 
 def frame_file(index: int, suffix: str = ".npy") -> str:
     """The file name of endopipe frame `index` (000012.npy)."""
     return f"{index:06d}{suffix}"
-
-
-class DepthMetrics(BaseModel):
-    """metrics.json: flat protocol blocks (stages.metrics.depth), per frame, and held-out image
-    quality. Blocks are present only when they were computed (no ground truth: none of the
-    depth ones); further keys from the metrics library are kept as they are."""
-
-    model_config = ConfigDict(extra="allow", ser_json_inf_nan="constants")
-
-    median_scaled: DepthScores | None = None
-    sequence_scaled: DepthScores | None = None
-    unscaled: DepthScores | None = None
-    affine_invariant: DepthScores | None = None
-    frames: int | None = None
-    per_frame: list[dict] | None = None
-    gt_kind: str | None = None  # "exact" | "pseudo" | "relative"
-    #: The radial and brightness guesses (stages.metrics.baselines), scored with the same
-    #: protocol blocks on the same pixels as ours: {"radial": {"median_scaled": {...}, ...}}.
-    baselines: dict[str, ProtocolScores] | None = None
-    heldout_frames: list[int] | None = None
-    heldout_psnr: float | None = None
-    heldout_ssim: float | None = None
-    per_frame_image: dict[str, dict[str, float]] | None = None
-    #: ours on the pixels other views agree with ("seen_again") and on the rest ("rest"),
-    #: each with the headline protocol block (median-scaled, or affine-invariant)
-    by_support: dict[str, DepthScores] | None = None
 
 
 class DepthView:
@@ -101,8 +73,7 @@ class DepthView:
     @property
     def metrics(self) -> DepthMetrics | None:
         """metrics.json (both protocols, per frame, held-out PSNR / SSIM); None when absent."""
-        path = self.folder / METRICS_FILE
-        return DepthMetrics.model_validate_json(path.read_text()) if path.is_file() else None
+        return DepthMetrics.read(self.folder)
 
     @property
     def preview_path(self) -> Path:

@@ -37,13 +37,11 @@ class Ingest(Stage):
     needs = ()
     version = 2  # 2: max_frames stops decoding; read, not_read and ground-truth coverage
     Config = IngestConfig
+    Summary = IngestSummary
+    View = IngestView
 
-    @classmethod
-    def view(cls, folder: Path) -> IngestView:
-        return IngestView(folder)
-
-    def run(self, ctx: StageContext) -> IngestSummary:
-        cfg: IngestConfig = ctx.config  # type: ignore[assignment]
+    def run(self, ctx: StageContext[IngestConfig]) -> IngestSummary:
+        cfg = ctx.config
         source = open_input(
             Path(ctx.case.input),
             Path(ctx.case.intrinsics_file) if ctx.case.intrinsics_file else None,

@@ -34,7 +34,6 @@ and read by `view.py` only.
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -52,8 +51,10 @@ from endopipe.stages.mesh.evaluation import (
     evaluate_against_gt,
     ground_truth_mesh,
 )
+from endopipe.stages.mesh.metrics_file import MeshMetrics
 from endopipe.stages.mesh.summary import MeshSummary
-from endopipe.stages.mesh.view import MeshView, save_mesh, save_metrics
+from endopipe.stages.mesh.view import MeshView, save_mesh
+from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
 from endopipe.stages.surface.clean import clean_mesh
 
@@ -76,17 +77,16 @@ class Mesh(Stage):
     needs = ("ingest", "poses", "centerline", "nerf", "depth")
     version = 2
     Config = MeshConfig
+    Summary = MeshSummary
+    View = MeshView
 
-    @classmethod
-    def view(cls, folder: Path) -> MeshView:
-        return MeshView(folder)
-
-    def run(self, ctx: StageContext) -> MeshSummary:
-        cfg: MeshConfig = ctx.config  # type: ignore[assignment]
-        ingest: IngestView = ctx.input("ingest")
-        poses: PosesView = ctx.input("poses")
-        centerline: CenterlineView = ctx.input("centerline")
-        depth: DepthView = ctx.input("depth")
+    def run(self, ctx: StageContext[MeshConfig]) -> MeshSummary:
+        cfg = ctx.config
+        ingest = ctx.input(IngestView)
+        poses = ctx.input(PosesView)
+        centerline = ctx.input(CenterlineView)
+        depth = ctx.input(DepthView)
+        nerf = ctx.input(NerfView)
         prior = centerline.prior()
         radius = float(prior.typical_radius)
         if not poses.registered:
@@ -94,10 +94,10 @@ class Mesh(Stage):
 
         t0 = time.perf_counter()
         if cfg.method == "tsdf":
-            c2w = ctx.input("nerf").c2w(poses)  # the poses the depth maps were rendered at
+            c2w = nerf.c2w(poses)  # the poses the depth maps were rendered at
             raw, info = fuse_depth(depth, poses, cfg, radius, ingest.image, c2w)
         else:
-            raw, info = nerf_marching_cubes(ctx.input("nerf"), depth, poses, prior, cfg)
+            raw, info = nerf_marching_cubes(nerf, depth, poses, prior, cfg)
         build_s = time.perf_counter() - t0
         ctx.log(
             f"{cfg.method}: {len(raw.vertices):,} vertices, {len(raw.faces):,} faces before "
@@ -126,13 +126,13 @@ class Mesh(Stage):
         )
         save_mesh(ctx.out, mesh, obj=cfg.export_obj)
 
-        metrics: dict[str, Any] = {"evaluated": False}
+        evaluation: dict[str, Any] = {"evaluated": False}
         if cfg.evaluate:
             gt = case_ground_truth(ctx.case.gt_dir or ingest.gt_dir)
             gt_mesh = ground_truth_mesh(gt)
             if gt_mesh is not None:
                 truth = gt.centerline() if hasattr(gt, "centerline") else None
-                metrics = evaluate_against_gt(
+                evaluation = evaluate_against_gt(
                     mesh,
                     poses,
                     gt_mesh,
@@ -145,16 +145,16 @@ class Mesh(Stage):
                     else radius,
                     fov_mask=ingest.fov(),
                 )
-                metrics["gt_kind"] = getattr(gt, "kind", "exact")
-                if metrics.get("evaluated"):
+                evaluation["gt_kind"] = getattr(gt, "kind", "exact")
+                if evaluation["evaluated"]:  # before inf / nan become null: the log shows them
                     ctx.log(
-                        f"vs gt ({metrics['aligned']}): chamfer {metrics['chamfer']:.3f} "
-                        f"({metrics['chamfer_pct_radius']:.2f}% of radius), F@"
-                        f"{metrics['threshold']:.2g} {metrics['fscore']:.3f}"
+                        f"vs gt ({evaluation['aligned']}): chamfer {evaluation['chamfer']:.3f} "
+                        f"({evaluation['chamfer_pct_radius']:.2f}% of radius), F@"
+                        f"{evaluation['threshold']:.2g} {evaluation['fscore']:.3f}"
                     )
             else:
-                metrics["reason"] = "no ground-truth mesh"
-        metrics.update(
+                evaluation["reason"] = "no ground-truth mesh"
+        evaluation.update(
             method=cfg.method,
             vertices=int(len(mesh.vertices)),
             faces=int(len(mesh.faces)),
@@ -163,10 +163,8 @@ class Mesh(Stage):
             **{k: v if isinstance(v, int) else float(v) for k, v in info.items()},
             **clean_info,
         )
-        metrics = {k: _finite(v) for k, v in metrics.items()}
-        save_metrics(ctx.out, metrics)
-        keys = ("chamfer", "chamfer_pct_radius", "accuracy", "completeness", "fscore")
-        keys += ("off_seen_pct",)
+        metrics = MeshMetrics.model_validate(_finite(evaluation))
+        metrics.write(ctx.out)
         return MeshSummary(
             method=cfg.method,
             vertices=len(mesh.vertices),
@@ -177,8 +175,13 @@ class Mesh(Stage):
             units=poses.file.units,
             build_s=round(build_s, 2),
             clean_s=round(clean_s, 2),
-            evaluated=bool(metrics.get("evaluated")),
-            threshold=metrics.get("threshold"),
-            aligned=metrics.get("aligned"),
-            **{k: metrics.get(k) for k in keys},
+            evaluated=metrics.evaluated,
+            threshold=metrics.threshold,
+            aligned=metrics.aligned,
+            chamfer=metrics.chamfer,
+            chamfer_pct_radius=metrics.chamfer_pct_radius,
+            accuracy=metrics.accuracy,
+            completeness=metrics.completeness,
+            fscore=metrics.fscore,
+            off_seen_pct=metrics.off_seen_pct,
         )

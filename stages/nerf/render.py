@@ -2,7 +2,7 @@
 evaluate density on a 3D grid (for marching cubes). World units in, world units out.
 
     model = load_model(folder)                    # 04_nerf/ (or the model.pt path)
-    prior = LumenPrior.load(centerline / "prior.npz")
+    prior = load_prior(centerline / "prior.npz")
     out = render_image(model, prior, intrinsics, c2w)   # depth (H, W) z-depth, opacity, rgb
 """
 
@@ -18,10 +18,10 @@ from endopipe.pipeline.errors import ConfigError
 from endopipe.stages.camera import Camera, pixel_rays
 from endopipe.stages.nerf.bounds import scene_bounds
 from endopipe.stages.nerf.config import NerfConfig
+from endopipe.stages.nerf.files import MODEL_FILE
 from endopipe.stages.nerf.model import NerfModel
 from endopipe.stages.nerf.sampling import weight_quantiles
 from endopipe.stages.nerf.scene import SceneBox
-from endopipe.stages.nerf.view import MODEL_FILE
 
 
 def save_model(path: Path, model: NerfModel, meta: dict | None = None) -> None:

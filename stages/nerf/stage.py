@@ -18,14 +18,18 @@ import numpy as np
 import torch
 
 from endopipe.pipeline.errors import EndopipeError
-from endopipe.pipeline.stage import Stage, StageContext, write_json
+from endopipe.pipeline.stage import Stage, StageContext
 from endopipe.stages.camera import Camera, lens_valid_mask, pixel_rays
+from endopipe.stages.centerline.view import CenterlineView
+from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.io.ground_truth import depth_of_frame
 from endopipe.stages.metrics.depth import depth_sequence_metrics
 from endopipe.stages.nerf import losses
 from endopipe.stages.nerf.bounds import PriorBounds
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.data import FrameSet, holdout_split
+from endopipe.stages.nerf.files import HELDOUT_RGB_DIR, MODEL_FILE
+from endopipe.stages.nerf.metrics_file import NerfMetrics
 from endopipe.stages.nerf.point_refine import refine_points
 from endopipe.stages.nerf.pose_refine import record, refinement_wanted
 from endopipe.stages.nerf.render import pick_device, render_image, save_model
@@ -33,13 +37,13 @@ from endopipe.stages.nerf.scene import SceneBox
 from endopipe.stages.nerf.sparse_depth import SparseDepth, sparse_depth_targets
 from endopipe.stages.nerf.summary import NerfSummary
 from endopipe.stages.nerf.train import CHECKPOINT, Trainer, auto_threads
-from endopipe.stages.nerf.view import HELDOUT_RGB_DIR, MODEL_FILE, NerfView
+from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
 
 
 def load_prior(centerline) -> object:
     """The LumenPrior of the centerline stage (its folder, or a view with a folder)."""
-    from endopipe.stages.centerline.prior import LumenPrior
+    from endopipe.stages.centerline.prior import load_prior as read_prior
 
     if hasattr(centerline, "prior") and not callable(centerline.prior):
         return centerline.prior
@@ -47,7 +51,7 @@ def load_prior(centerline) -> object:
     path = folder / "prior.npz" if folder.is_dir() else folder
     if not path.is_file():
         raise EndopipeError(f"no lumen prior at {path}; re-run the centerline stage")
-    return LumenPrior.load(path)
+    return read_prior(path)
 
 
 def fit_box(
@@ -282,14 +286,12 @@ class Nerf(Stage):
     needs = ("ingest", "poses", "centerline")
     version = 5  # 5: the held-out renders kept (heldout_rgb/) for the depth stage
     Config = NerfConfig
+    Summary = NerfSummary
+    View = NerfView
     resumable = True
 
-    @classmethod
-    def view(cls, folder: Path) -> NerfView:
-        return NerfView(folder)
-
-    def run(self, ctx: StageContext) -> NerfSummary:
-        cfg: NerfConfig = ctx.config  # type: ignore[assignment]
+    def run(self, ctx: StageContext[NerfConfig]) -> NerfSummary:
+        cfg = ctx.config
         threads = torch.get_num_threads()
         torch.set_num_threads(cfg.train.threads or auto_threads())
         try:
@@ -297,9 +299,9 @@ class Nerf(Stage):
         finally:
             torch.set_num_threads(threads)
 
-    def _run(self, ctx: StageContext, cfg: NerfConfig) -> NerfSummary:
-        ingest, poses = ctx.input("ingest"), ctx.input("poses")
-        run = set_up_training(cfg, ingest, poses, ctx.input("centerline"), ctx.out, ctx.log)
+    def _run(self, ctx: StageContext[NerfConfig], cfg: NerfConfig) -> NerfSummary:
+        ingest, poses = ctx.input(IngestView), ctx.input(PosesView)
+        run = set_up_training(cfg, ingest, poses, ctx.input(CenterlineView), ctx.out, ctx.log)
         cfg, trainer = run.cfg, run.trainer
         if trainer.core_fraction < cfg.loss.core_fraction:
             ctx.log(
@@ -344,7 +346,7 @@ class Nerf(Stage):
             model, run.prior, ingest, run.camera, c2w_used, run.ids, run.held_ids, cfg, ctx
         )
         (ctx.out / CHECKPOINT).unlink(missing_ok=True)
-        write_json(ctx.out / "metrics.json", evaluation)
+        evaluation.write(ctx.out)
         return NerfSummary(
             steps=trainer.step_i,
             planned_steps=cfg.train.steps,
@@ -353,9 +355,9 @@ class Nerf(Stage):
             heldout_frames=len(run.held_ids),
             train_s=round(trainer.elapsed, 2),
             rays_per_s=round(rays_per_s, 1),
-            render_ms=evaluation.get("render_rgb_ms"),
-            heldout_psnr=evaluation.get("psnr"),
-            depth=evaluation.get("depth"),
+            render_ms=evaluation.render_rgb_ms,
+            heldout_psnr=evaluation.psnr,
+            depth=evaluation.depth,
             resumed_from=start,
             device=str(trainer.device),
             threads=torch.get_num_threads(),
@@ -366,7 +368,7 @@ class Nerf(Stage):
         )
 
 
-def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) -> dict:
+def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) -> NerfMetrics:
     """Render the held-out frames: PSNR on usable pixels, depth metrics against ground truth."""
     held = held_ids[: cfg.train.eval_frames] if cfg.train.eval_frames else held_ids
     gt = ingest.ground_truth_for_scores(ctx.log)
@@ -404,9 +406,9 @@ def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) 
         result["depth"] = {k: metrics[k] for k in ("median_scaled", "sequence_scaled", "unscaled")}
         result["depth_frames"] = len(preds)
     if previews:
-        poses = ctx.input("poses")
+        poses = ctx.input(PosesView)
         write_preview(ctx.out / "heldout.png", previews[:4], poses.file.units, poses.metric)
-    return result
+    return NerfMetrics.model_validate(result)
 
 
 #: Depth is drawn with one colour map everywhere (this grid, 05_depth/preview.mp4, the report).

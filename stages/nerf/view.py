@@ -6,7 +6,6 @@ training log and plots, the held-out evaluation (metrics.json), the refined came
 from __future__ import annotations
 
 import csv
-import json
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -15,20 +14,20 @@ import numpy as np
 from pydantic import BaseModel
 
 from endopipe.pipeline.stage import read_summary
+from endopipe.stages.nerf.files import (
+    HELDOUT_PLOT_FILE,
+    HELDOUT_RGB_DIR,
+    LOSS_PLOT_FILE,
+    MODEL_FILE,
+    REFINED_CAMERAS_FILE,
+    TRAIN_LOG_FILE,
+)
+from endopipe.stages.nerf.metrics_file import NerfMetrics
 from endopipe.stages.nerf.summary import NerfSummary
 
 if TYPE_CHECKING:
     from endopipe.stages.nerf.model import NerfModel
     from endopipe.stages.poses.view import PosesView
-
-MODEL_FILE = "model.pt"
-TRAIN_LOG_FILE = "train_log.csv"
-LOSS_PLOT_FILE = "loss.png"
-HELDOUT_PLOT_FILE = "heldout.png"
-#: The held-out frames as the field renders them (16-bit RGB PNG, display-encoded).
-HELDOUT_RGB_DIR = "heldout_rgb"
-METRICS_FILE = "metrics.json"
-REFINED_CAMERAS_FILE = "cameras_refined.json"
 
 
 class RefinedFrame(BaseModel):
@@ -126,11 +125,10 @@ class NerfView:
 
     # --- evaluation ---------------------------------------------------------------------------
     @cached_property
-    def metrics(self) -> dict[str, Any] | None:
+    def metrics(self) -> NerfMetrics | None:
         """metrics.json: held-out frames, PSNR, render times and, with ground-truth depth,
-        `depth` ({"median_scaled", "sequence_scaled", "unscaled"}); None when absent."""
-        path = self.folder / METRICS_FILE
-        return json.loads(path.read_text()) if path.is_file() else None
+        their depth scores; None when absent."""
+        return NerfMetrics.read(self.folder)
 
     def heldout_rgb(self, index: int) -> np.ndarray | None:
         """Held-out frame `index` as the field rendered it after training (H, W, 3) float32 in
@@ -146,4 +144,4 @@ class NerfView:
     @property
     def heldout(self) -> list[int]:
         """The frames held out of training (and evaluated)."""
-        return list((self.metrics or {}).get("heldout", []))
+        return list(self.metrics.heldout) if self.metrics is not None else []

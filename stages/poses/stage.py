@@ -7,7 +7,8 @@ measure. When the input has ground-truth poses (a case folder's gt/ or a data se
 through `open_ground_truth`), the reconstruction is moved by the sim3 (Umeyama on camera centres)
 that best maps it onto them: it is then in the ground truth's world frame and millimetres ("metric":
 true, "aligned_to_gt"), so depth and mesh evaluations compare directly; without ground truth it
-stays in COLMAP's units. Settings: config.py; COLMAP: colmap_sfm.py.
+stays in COLMAP's units. Settings: config.py; COLMAP: colmap_sfm.py; the lens (its reach, where
+it was fitted, its re-fit as a fisheye): lens.py.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numpy as np
 
 from endopipe.pipeline.errors import ConfigError, InputError, StageFailed
 from endopipe.pipeline.stage import Stage, StageContext, write_json
-from endopipe.stages.camera import Camera, apply_sim3, lens_valid_mask, umeyama
+from endopipe.stages.camera import apply_sim3, umeyama
 from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.io.colmap_model import (
     PoseSet,
@@ -39,6 +40,14 @@ from endopipe.stages.io.transforms_json import read_transforms_json, write_trans
 from endopipe.stages.metrics.depth import pose_metrics, registered_fraction
 from endopipe.stages.poses.config import PosesConfig
 from endopipe.stages.poses.estimate import Estimate
+from endopipe.stages.poses.lens import (
+    LensRefit,
+    fitted_radius_px,
+    lens_folds,
+    lens_reach,
+    reach_note,
+    unfold,
+)
 from endopipe.stages.poses.summary import PosesSummary
 from endopipe.stages.poses.verdict import (
     PoseVerdict,
@@ -51,7 +60,6 @@ from endopipe.stages.poses.view import CamerasFile, PosesView
 
 if TYPE_CHECKING:
     from endopipe.stages.poses.colmap_sfm import SfmResult
-    from endopipe.stages.poses.lens_refit import Refit
 
 __all__ = ["Poses", "PosesConfig", "PosesSummary"]
 
@@ -61,17 +69,15 @@ class Poses(Stage):
 
     name = "poses"
     needs = ("ingest",)
-    version = 4  # 4: an estimated lens that bends back re-fitted as a fisheye
+    version = 5  # 5: the summary's lens_refit a record (LensRefit), not a sentence
     Config = PosesConfig
+    Summary = PosesSummary
+    View = PosesView
 
-    @classmethod
-    def view(cls, folder: Path) -> PosesView:
-        return PosesView(folder)
-
-    def run(self, ctx: StageContext) -> PosesSummary:
+    def run(self, ctx: StageContext[PosesConfig]) -> PosesSummary:
         t0 = time.perf_counter()
-        cfg: PosesConfig = ctx.config  # type: ignore[assignment]
-        ingest: IngestView = ctx.input("ingest")
+        cfg = ctx.config
+        ingest = ctx.input(IngestView)
         n = len(ingest.frames)
         gt, gt_poses = None, None
         try:
@@ -157,33 +163,12 @@ class Poses(Stage):
             + ("; aligned to ground truth (mm)" if aligned and cfg.source != "gt" else "")
         )
         ctx.log(verdict_line(verdict))
-        if summary.lens_reach is not None and summary.lens_reach < 1.0:
-            ctx.log(
-                f"lens: the {summary.camera_model} model bends back before the edge of the "
-                f"field of view and reaches {summary.lens_reach:.1%} of it; the rest gets no "
-                "ray, so no depth"
-                + (
-                    " (poses.unfold_lens re-fits an estimated lens as a fisheye that reaches "
-                    "every pixel)"
-                    if summary.intrinsics == "estimated"
-                    else ""
-                )
-            )
+        note = reach_note(
+            summary.camera_model, summary.lens_reach, summary.intrinsics == "estimated"
+        )
+        if note is not None:
+            ctx.log(note)
         return summary
-
-
-def lens_reach(k: Camera, ingest: IngestView) -> float | None:
-    """The share of the field-of-view mask's pixels that the lens model gives a ray (None
-    without a mask)."""
-    fov = ingest.fov()
-    if fov is None:
-        return None
-    if (k.width, k.height) != (ingest.width, ingest.height):
-        k = k.scaled(ingest.width, ingest.height)
-    inside = fov > 127
-    if not inside.any() or inside.shape != (k.height, k.width):
-        return None
-    return round(float((inside & lens_valid_mask(k)).sum()) / float(inside.sum()), 4)
 
 
 def assess(est: Estimate, cfg: PosesConfig, ingest: IngestView) -> PoseVerdict:
@@ -247,10 +232,9 @@ def clean_scratch(scratch: Path, keep_database: bool, work: tuple[str, ...]) -> 
         shutil.rmtree(scratch, ignore_errors=True)
 
 
-def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Estimate:
+def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext[PosesConfig]) -> Estimate:
     # pycolmap is heavy: only when used
     from endopipe.stages.poses.colmap_sfm import frame_poses, run_sfm
-    from endopipe.stages.poses.lens_refit import fitted_radius_px
 
     known = ingest.intrinsics
     scratch = ctx.out / "colmap"
@@ -288,11 +272,11 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Esti
     sfm = by_mapper[verdict.mapper]
     rec, camera, model, c2w = sfm.reconstruction, sfm.camera, sfm.colmap_model, sfm.c2w
     fixed = known is not None and not cfg.refine_known_intrinsics
-    refit_info: dict[str, str] = {}
+    refit_info: dict[str, LensRefit] = {}
     if known is None and cfg.unfold_lens and lens_folds(camera, ingest):
-        refit = unfold(rec, cfg, ctx)
+        refit = unfold(rec, cfg.refine_principal_point, ctx.log)
         if refit is not None:
-            refit_info["lens_refit"] = f"{model} {refit.said}"
+            refit_info["lens_refit"] = refit.record
             rec, camera, model = refit.reconstruction, refit.camera, refit.colmap_model
             c2w = frame_poses(rec, index_of)
     xyz, rgb = reconstruction_points(rec)
@@ -323,33 +307,13 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> Esti
     )
 
 
-def lens_folds(camera: Camera, ingest: IngestView) -> bool:
-    """Whether the lens model leaves some pixel of the field of view (the whole image without a
-    mask) without a ray."""
-    reach = lens_reach(camera, ingest)
-    if reach is None:
-        return not bool(lens_valid_mask(camera).all())
-    return reach < 1.0
-
-
-def unfold(rec, cfg: PosesConfig, ctx: StageContext) -> Refit | None:
-    """The model with its lens re-fitted as a fisheye, or None (said in the log) when it cannot
-    be."""
-    from endopipe.stages.poses.lens_refit import refit_as_fisheye
-
-    refit = refit_as_fisheye(rec, cfg.refine_principal_point)
-    if refit is None:
-        ctx.log("lens: bends back inside the field of view and could not be re-fitted as a fisheye")
-    else:
-        ctx.log(f"lens: {refit.said}; every pixel has a ray")
-    return refit
-
-
 #: Fewer triangulated points than this are noise, not a wall: keep none.
 MIN_TRIANGULATED_POINTS = 10
 
 
-def triangulate(est: Estimate, ingest: IngestView, cfg: PosesConfig, ctx: StageContext) -> None:
+def triangulate(
+    est: Estimate, ingest: IngestView, cfg: PosesConfig, ctx: StageContext[PosesConfig]
+) -> None:
     """Sparse points (and tracks in sparse/) from the known poses; without them the centerline
     stage falls back to a default radius. A failure costs the points only, never the stage."""
     from endopipe.stages.poses.colmap_sfm import triangulate_known  # pycolmap: only when used
@@ -438,8 +402,6 @@ def from_file(ingest: IngestView, cfg: PosesConfig) -> Estimate:
         est.xyz, est.rgb = reconstruction_points(rec)
         est.reconstruction = rec
         if kind == "from file":  # the lens may have been estimated: where its tracks reach
-            from endopipe.stages.poses.lens_refit import fitted_radius_px
-
             est.fitted_radius_px = fitted_radius_px(rec)
     return est
 
@@ -509,7 +471,7 @@ def align_to(est: Estimate, gt_poses: dict[int, np.ndarray]) -> bool:
 
 
 def write_outputs(
-    ctx: StageContext, ingest: IngestView, est: Estimate, source: str, metric: bool
+    ctx: StageContext[PosesConfig], ingest: IngestView, est: Estimate, source: str, metric: bool
 ) -> None:
     out = ctx.out
     cams = CamerasFile.build(

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from endopipe.pipeline.stage import Summary
+from endopipe.stages.poses.lens import LensRefit
 
 
 class PosesSummary(Summary):
@@ -51,6 +52,7 @@ class PosesSummary(Summary):
     #: share of the field of view's pixels the lens model gives a ray (the rest: no depth)
     lens_reach: float | None = None
     #: an estimated lens that bent back inside the field of view, re-fitted as a fisheye: how
-    lens_refit: str | None = None
+    #: (`LensRefit.said` puts it in words)
+    lens_refit: LensRefit | None = None
     #: an estimated lens: how far from the principal point (px) its features reach
     fitted_radius_px: float | None = None

@@ -13,6 +13,7 @@ from pydantic import BaseModel, Field, model_validator
 from endopipe.pipeline.stage import read_summary
 from endopipe.stages.camera import Camera
 from endopipe.stages.io.colmap_model import camera_from_colmap, camera_to_colmap
+from endopipe.stages.poses.lens import past_fitted_radius
 from endopipe.stages.poses.summary import PosesSummary
 from endopipe.stages.poses.verdict import PoseVerdict
 
@@ -123,19 +124,6 @@ class SparseObservations:
     track: np.ndarray  # (N,) images that see the point
     error: np.ndarray  # (N,) px
     angle: np.ndarray  # (N,) widest angle between two of the point's viewing rays (degrees)
-
-
-def past_fitted_radius(
-    camera: Camera, fitted_radius_px: float | None, fitted_width: int, share: float = 1.0
-) -> np.ndarray | None:
-    """(H, W) bool for `camera`'s image: the pixels farther from its principal point than `share`
-    of the radius an estimated lens was fitted within (given in pixels of an image
-    `fitted_width` wide); None when the lens was given."""
-    if fitted_radius_px is None:
-        return None
-    u, v = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
-    radius = share * fitted_radius_px * camera.width / fitted_width
-    return np.hypot(u - camera.cx, v - camera.cy) > radius
 
 
 class PosesView:

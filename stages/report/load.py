@@ -23,15 +23,22 @@ from endopipe.stages.report.kit import one_line
 
 if TYPE_CHECKING:
     from endopipe.stages.centerline.summary import CenterlineSummary
+    from endopipe.stages.centerline.view import CenterlineView
+    from endopipe.stages.depth.metrics_file import DepthMetrics
     from endopipe.stages.depth.summary import DepthSummary
-    from endopipe.stages.depth.view import DepthMetrics
+    from endopipe.stages.depth.view import DepthView
     from endopipe.stages.ingest.summary import IngestSummary
+    from endopipe.stages.ingest.view import IngestView
     from endopipe.stages.io.ground_truth import GroundTruthSource
+    from endopipe.stages.mesh.metrics_file import MeshMetrics
     from endopipe.stages.mesh.summary import MeshSummary
-    from endopipe.stages.mesh.view import MeshMetrics
+    from endopipe.stages.mesh.view import MeshView
+    from endopipe.stages.nerf.metrics_file import NerfMetrics
     from endopipe.stages.nerf.summary import NerfSummary
+    from endopipe.stages.nerf.view import NerfView
     from endopipe.stages.poses.summary import PosesSummary
     from endopipe.stages.poses.verdict import PoseVerdict
+    from endopipe.stages.poses.view import PosesView
 
 #: The stages whose folders the report reads, in DAG order.
 STAGES = ("ingest", "poses", "centerline", "nerf", "depth", "mesh")
@@ -87,30 +94,33 @@ class CaseData:
     verdict_error: str | None = None
     _metrics: dict[str, Any] = field(default_factory=dict)
 
-    # --- views ----------------------------------------------------------------------------------
-    @property
-    def ingest(self) -> Any:
-        return self.views.get("ingest")
+    # --- views, as each stage's own class (None when its folder is absent or unreadable) -----
+    def _view(self, stage: str) -> Any:
+        return self.views[stage] if stage in self.views else None
 
     @property
-    def poses(self) -> Any:
-        return self.views.get("poses")
+    def ingest(self) -> IngestView | None:
+        return cast("IngestView | None", self._view("ingest"))
 
     @property
-    def centerline(self) -> Any:
-        return self.views.get("centerline")
+    def poses(self) -> PosesView | None:
+        return cast("PosesView | None", self._view("poses"))
 
     @property
-    def nerf(self) -> Any:
-        return self.views.get("nerf")
+    def centerline(self) -> CenterlineView | None:
+        return cast("CenterlineView | None", self._view("centerline"))
 
     @property
-    def depth(self) -> Any:
-        return self.views.get("depth")
+    def nerf(self) -> NerfView | None:
+        return cast("NerfView | None", self._view("nerf"))
 
     @property
-    def mesh(self) -> Any:
-        return self.views.get("mesh")
+    def depth(self) -> DepthView | None:
+        return cast("DepthView | None", self._view("depth"))
+
+    @property
+    def mesh(self) -> MeshView | None:
+        return cast("MeshView | None", self._view("mesh"))
 
     def folder(self, stage: str) -> Path | None:
         """The stage's published folder, when it exists (its name is shown, never parsed)."""
@@ -156,19 +166,19 @@ class CaseData:
 
     @property
     def mesh_metrics(self) -> MeshMetrics | None:
-        """06_mesh/metrics.json (None when absent, empty or unreadable)."""
-        return cast("MeshMetrics | None", self._read_metrics("mesh") or None)
+        """06_mesh/metrics.json (None when absent or unreadable)."""
+        return cast("MeshMetrics | None", self._read_metrics("mesh"))
 
     @property
-    def nerf_metrics(self) -> dict[str, Any] | None:
-        """04_nerf/metrics.json, a plain dict (None when absent, empty or unreadable)."""
-        return cast("dict[str, Any] | None", self._read_metrics("nerf") or None)
+    def nerf_metrics(self) -> NerfMetrics | None:
+        """04_nerf/metrics.json (None when absent or unreadable)."""
+        return cast("NerfMetrics | None", self._read_metrics("nerf"))
 
     def _read_metrics(self, stage: str) -> Any:
         """The stage view's `metrics`, read once; None when absent or unreadable."""
         if stage not in self._metrics:
             try:
-                self._metrics[stage] = getattr(self.views.get(stage), "metrics", None)
+                self._metrics[stage] = getattr(self._view(stage), "metrics", None)
             except (OSError, ValueError):
                 self._metrics[stage] = None
         return self._metrics[stage]
@@ -215,8 +225,8 @@ class CaseData:
         depth, mesh = self.depth_metrics, self.mesh_metrics
         if depth is not None and depth.gt_kind:
             return depth.gt_kind
-        if mesh is not None and mesh.get("gt_kind"):
-            return str(mesh["gt_kind"])
+        if mesh is not None and mesh.gt_kind:
+            return mesh.gt_kind
         gt = self.ground_truth()
         return str(getattr(gt, "kind", "exact")) if gt is not None else "none"
 

@@ -24,8 +24,6 @@ module per section, with its template in templates/sections/), figures.py (plots
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from endopipe.pipeline.stage import Stage, StageContext
 from endopipe.stages.report.config import ReportConfig
 from endopipe.stages.report.render import render_report
@@ -40,16 +38,14 @@ class Report(Stage):
     needs = ("ingest", "poses", "centerline", "nerf", "depth", "mesh")
     version = 1
     Config = ReportConfig
+    Summary = ReportSummary
+    View = ReportView
 
-    @classmethod
-    def view(cls, folder: Path) -> ReportView:
-        return ReportView(folder)
-
-    def run(self, ctx: StageContext) -> ReportSummary:
-        cfg: ReportConfig = ctx.config  # type: ignore[assignment]
+    def run(self, ctx: StageContext[ReportConfig]) -> ReportSummary:
+        cfg = ctx.config
         folders = {name: ctx.input_dir(name) for name in self.needs}
         page, info = render_report(
-            ctx.case_dir, folders, cfg, open_view=lambda name, _folder: ctx.input(name)
+            ctx.case_dir, folders, cfg, open_view=lambda name, _folder: ctx.input_by_name(name)
         )
         path = ctx.out / PAGE
         path.write_text(page, encoding="utf-8")

@@ -9,7 +9,7 @@ the lumen's core (where density should vanish), and near/far bounds for rays cas
 - `FreePrior` (free.py): no wall, only the scene's length scale and how far the cameras saw.
 
 All accept torch tensors (or arrays) of shape (..., 3) on any device and return tensors; all
-round-trip through `prior.npz` (storage.py: `save`, `LumenPrior.load`). No pipeline imports:
+round-trip through `prior.npz` (storage.py: `save_prior`, `load_prior`). No pipeline imports:
 the NeRF stage and plain scripts use this package alone. The fits that make these shapes from
 the camera path and the SfM points live beside it (tube.py, cavity.py, choose.py).
 """

@@ -1,10 +1,9 @@
 """The interface every lumen prior shape offers the NeRF regulariser, the depth and mesh stages:
-signed distance to the wall, the lumen's core, ray bounds, the scene's length scale, and
-`prior.npz` persistence (delegated to storage.py, which knows every shape)."""
+signed distance to the wall, the lumen's core, ray bounds and the scene's length scale.
+`prior.npz` is storage.py's (`save_prior`, `load_prior`): it knows every shape, so the shapes
+import this module and this module imports none of them."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -93,20 +92,6 @@ class LumenPrior:
 
     def _moved(self, s: float, r: np.ndarray, t: np.ndarray) -> LumenPrior:
         raise NotImplementedError
-
-    # --- persistence ----------------------------------------------------------------------
-    def save(self, path: str | Path) -> None:
-        """Write `prior.npz`: kind, curve samples, radii, ellipsoid parameters."""
-        from endopipe.stages.centerline.prior.storage import save_prior
-
-        save_prior(self, path)
-
-    @staticmethod
-    def load(path: str | Path) -> LumenPrior:
-        """The prior stored in `prior.npz` (TubePrior, EllipsoidPrior or FreePrior)."""
-        from endopipe.stages.centerline.prior.storage import load_prior
-
-        return load_prior(path)
 
     def to(self, device: str | torch.device) -> LumenPrior:
         """Warm the buffers for `device` (queries move them on demand anyway)."""

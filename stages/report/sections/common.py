@@ -1,5 +1,5 @@
-"""What several sections share: the section's signature, the page's record, numbers read
-from files that are plain JSON, and the held-out image scores."""
+"""What several sections share: the section's signature, the page's record, numbers as the
+page shows them, and the held-out image scores."""
 
 from __future__ import annotations
 
@@ -38,11 +38,11 @@ def number(value: Any) -> float | None:
 
 
 def heldout_image_scores(data: CaseData) -> tuple[float | None, float | None]:
-    """PSNR and SSIM of the held-out frames: the depth stage's, else the NeRF stage's."""
-    dm, nm = data.depth_metrics, data.nerf_metrics or {}
+    """PSNR and SSIM of the held-out frames: the depth stage's, else the NeRF stage's PSNR
+    (the NeRF stage measures no SSIM)."""
+    dm, nm = data.depth_metrics, data.nerf_metrics
     psnr = number(dm.heldout_psnr) if dm is not None else None
     ssim = number(dm.heldout_ssim) if dm is not None else None
-    return (
-        psnr if psnr is not None else number(nm.get("psnr")),
-        ssim if ssim is not None else number(nm.get("ssim")),
-    )
+    if psnr is None and nm is not None:
+        psnr = number(nm.psnr)
+    return psnr, ssim

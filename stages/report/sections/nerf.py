@@ -18,20 +18,20 @@ def section_nerf(data: CaseData, info: ReportInfo) -> str | None:
         held = file_image_uri(nerf.heldout_plot_path, 1100, "jpg", data.cfg.jpeg_quality)
     if loss is None and held is None and s is None:
         return None
-    nm = data.nerf_metrics or {}
-    # metrics.json's PSNR first (it has the key even when it is null), then the summary's
-    summary_psnr = s.heldout_psnr if s is not None else None
-    psnr = nm["psnr"] if "psnr" in nm else summary_psnr
-    show_psnr = nm.get("psnr") is not None or summary_psnr is not None
+    nm = data.nerf_metrics
+    # metrics.json's PSNR first, then the summary's (the same number, when both exist)
+    psnr = nm.psnr if nm is not None else None
+    if psnr is None and s is not None:
+        psnr = s.heldout_psnr
     depth = s.depth if s is not None else None
     return render(
         "sections/nerf.html.j2",
         loss=loss,
         held=held,
         s=s,
-        render_rgb_ms=nm.get("render_rgb_ms"),
-        psnr=psnr if show_psnr else None,
-        show_psnr=show_psnr,
+        render_rgb_ms=nm.render_rgb_ms if nm is not None else None,
+        psnr=psnr,
+        show_psnr=psnr is not None,
         depth=score_table(depth.median_scaled, depth.sequence_scaled, units=data.units)
         if depth is not None
         else None,

@@ -33,7 +33,7 @@ def section_summary(data: CaseData, info: ReportInfo) -> str:
     coverage = median.coverage if median is not None else None
     if coverage is None and affine is not None:
         coverage = affine.coverage
-    mm = data.mesh_metrics or {}
+    mm = data.mesh_metrics
     verdict = data.pose_verdict() if poses is not None else None
     gt = info.gt_kind
     gt_dir = data.gt_dir()
@@ -65,9 +65,9 @@ def section_summary(data: CaseData, info: ReportInfo) -> str:
         median=median,
         affine=affine,
         coverage=number(coverage),
-        chamfer=number(mm.get("chamfer")),
-        fscore=number(mm.get("fscore")),
-        tau=number(mm.get("threshold")),
+        chamfer=mm.chamfer if mm is not None else None,
+        fscore=mm.fscore if mm is not None else None,
+        tau=mm.threshold if mm is not None else None,
         psnr=heldout_image_scores(data)[0],
         verdict=VerdictBlock(verdict) if verdict is not None else None,
         guess_verdicts=verdicts(dm) if dm is not None else [],

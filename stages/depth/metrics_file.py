@@ -1,0 +1,56 @@
+"""05_depth/metrics.json (docs/formats.md) as one model: the depth stage writes it through
+`DepthMetrics.write`, `DepthView.metrics` reads it back, and the report reads its fields."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict
+
+from endopipe.pipeline.stage import write_json
+from endopipe.stages.metrics.scores import DepthScores, ProtocolScores
+
+METRICS_FILE = "metrics.json"
+
+
+class DepthMetrics(BaseModel):
+    """metrics.json: flat protocol blocks (stages.metrics.depth), per frame, and held-out image
+    quality. Blocks are present only when they were computed (no ground truth: none of the
+    depth ones); further keys from the metrics library are kept as they are."""
+
+    model_config = ConfigDict(extra="allow", ser_json_inf_nan="constants")
+
+    median_scaled: DepthScores | None = None
+    sequence_scaled: DepthScores | None = None
+    unscaled: DepthScores | None = None
+    affine_invariant: DepthScores | None = None
+    frames: int | None = None
+    #: per frame: {"index", and a block per protocol}, or for a relative ground truth the
+    #: affine-invariant scores flat
+    per_frame: list[dict] | None = None
+    gt_kind: str | None = None  # "exact" | "pseudo" | "relative"
+    #: The radial and brightness guesses (stages.metrics.baselines), scored with the same
+    #: protocol blocks on the same pixels as ours: {"radial": {"median_scaled": {...}, ...}}.
+    baselines: dict[str, ProtocolScores] | None = None
+    heldout_frames: list[int] | None = None
+    heldout_psnr: float | None = None
+    heldout_ssim: float | None = None
+    per_frame_image: dict[str, dict[str, float]] | None = None
+    #: ours on the pixels other views agree with ("seen_again") and on the rest ("rest"),
+    #: each with the headline protocol block (median-scaled, or affine-invariant)
+    by_support: dict[str, DepthScores] | None = None
+
+    def headline(self) -> DepthScores | None:
+        """Ours' headline block: median-scaled, or affine-invariant for a relative truth."""
+        return self.median_scaled or self.affine_invariant
+
+    def write(self, folder: Path) -> None:
+        """metrics.json in `folder`: the keys that were set, nothing added (NaN stays NaN, as
+        the stage's other JSON writes it)."""
+        write_json(Path(folder) / METRICS_FILE, self.model_dump(exclude_unset=True))
+
+    @classmethod
+    def read(cls, folder: Path) -> DepthMetrics | None:
+        """The folder's metrics.json; None when absent (a ValueError when malformed)."""
+        path = Path(folder) / METRICS_FILE
+        return cls.model_validate_json(path.read_text()) if path.is_file() else None
