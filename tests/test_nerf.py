@@ -261,10 +261,10 @@ def test_grid_warp_auto_follows_where_the_sfm_points_lie():
 
 
 def test_paper_preset_trains_with_coarse_and_fine_passes(tmp_path):
-    from endopipe.pipeline.config import deep_merge
-    from endopipe.stages.nerf.config import PAPER_PRESET
+    from endopipe.pipeline.config import deep_merge, read_yaml, resolve_config_path
 
-    raw = deep_merge(PAPER_PRESET, {"field": {"positional": {"width": 32}}})
+    paper = read_yaml(resolve_config_path("paper"))["nerf"]  # the preset a user names
+    raw = deep_merge(paper, {"field": {"positional": {"width": 32}}})
     cfg = NerfConfig.model_validate(raw)
     assert cfg.field.encoding == "positional" and cfg.sampling.n_fine == 128
     assert cfg.train.steps == 200000 and cfg.train.time_budget_s is None

@@ -1,7 +1,7 @@
 """The nerf stage's config tree: field, sampling, losses, training (a run is a filled-in config).
 
 Defaults are the fast CPU setting (TensoRF VM grid, two-pass sampling). The paper's exact setting
-(seed §4.3) is expressible too, see `PAPER_PRESET` and configs/paper.yaml.
+(seed §4.3) is the `paper` preset, endopipe/configs/paper.yaml (docs/method.md).
 """
 
 from __future__ import annotations
@@ -535,25 +535,3 @@ class NerfConfig(StageConfig):
         description="Added regularisers and a coarser grid when field.warp: auto leaves the grid "
         "unwarped.",
     )
-
-
-#: The seed's exact settings (§4.3): configs/paper.yaml holds the same keys under `nerf:`.
-PAPER_PRESET: dict = {
-    "field": {
-        "encoding": "positional",
-        "positional": {"depth": 8, "width": 256, "skip": 4, "pos_bands": 10},
-        "view_dependent": True,
-        "dir_bands": 4,
-        "warp": False,
-    },
-    "sampling": {"sampler": "coarse_fine", "n_coarse": 64, "n_fine": 128, "spacing": "linear"},
-    "train": {"steps": 200000, "time_budget_s": None, "lr_mlp": 5e-4, "lr_decay": 0.1},
-    "loss": {
-        "lambda_prior": 0.1,
-        "lambda_smooth": 0.05,
-        "lambda_geo": 0.01,
-        "sparse_weight": 0.0,
-    },
-    "shading": {"falloff": "none", "learn_gamma": False, "exposure": False},
-    "pose_refine": {"mode": "off"},
-}
