@@ -104,7 +104,7 @@ def _read(source: str, cls_name: str) -> dict[str, Any] | None:
     cls = next((n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == cls_name), None)
     if cls is None or [getattr(b, "id", None) for b in cls.bases] != ["Stage"]:
         return None  # absent, or attributes it may inherit from a class between it and Stage
-    attrs = {"needs": (), "version": 1, "resumable": False}
+    attrs: dict[str, Any] = {"needs": (), "version": 1, "resumable": False}
     imported: dict[str, tuple[str, str]] = {}  # attribute -> (module, name)
     for node in cls.body:
         if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef) and node.name == "view":
