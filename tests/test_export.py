@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 import trimesh
 
+from endopipe import export
 from endopipe.cli import build_pipeline, main
-from endopipe.commands import export
 from endopipe.export import ExportResult
 from endopipe.export.endonerf import (
     ENDONERF_AXES,

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 import trimesh
 
+from endopipe import export
 from endopipe.cli import build_pipeline, main
-from endopipe.commands import export
 from endopipe.export import ExportResult
 from endopipe.export.endonerf import MAX_LENS_SHIFT_PX, lens_shift_px
 from endopipe.pipeline.errors import EndopipeError
