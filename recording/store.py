@@ -53,7 +53,7 @@ class RecordingInputs:
         ingest = pipe.manifest(case_dir, "ingest")
         self.config: dict[str, Any] = {
             "windows": plan.windows,
-            "options": options.model_dump(mode="json"),
+            "light_scale": options.light_scale,
             "until": until,
             "depth": configs["depth"].model_dump(mode="json"),
             "mesh": configs["mesh"].model_dump(mode="json"),
