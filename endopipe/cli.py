@@ -11,7 +11,9 @@ import functools
 import importlib
 import inspect
 import shlex
+import signal
 import sys
+import threading
 import traceback
 from collections.abc import Callable
 from pathlib import Path
@@ -468,25 +470,55 @@ def _click_errors() -> tuple[type[Exception], ...]:
     return (ClickException,)
 
 
-def interrupted(argv: list[str] | None) -> int:
-    """Ctrl-C: say so, and how to go on; finished stages are kept and a re-run resumes."""
+#: The exit code of a run stopped by SIGTERM (a scheduler's time limit or preemption, `kill`).
+TERMINATED = 128 + signal.SIGTERM
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the run is so that it unwinds as Ctrl-C does: the stage running
+    keeps (resumable) or drops its temporary folder, and nothing is published half written."""
+
+
+def interrupted(argv: list[str] | None, terminated: bool = False) -> int:
+    """Ctrl-C or SIGTERM: say so, and how to go on; finished stages are kept and a re-run
+    resumes."""
     command = shlex.join(["endopipe", *(sys.argv[1:] if argv is None else argv)])
+    what = "terminated (SIGTERM)" if terminated else "interrupted"
     console.print(
-        f"[bold red]interrupted[/bold red]: finished stages are kept; "
+        f"[bold red]{what}[/bold red]: finished stages are kept; "
         f"to resume, run the same command again: {escape(command)}",
         highlight=False,
         soft_wrap=True,
     )
-    return INTERRUPTED
+    return TERMINATED if terminated else INTERRUPTED
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: one clear line and an exit code for every failure, never a traceback.
 
     With standalone_mode=False typer returns an exit code instead of exiting; Ctrl-C comes
-    back as 130 (typer turns KeyboardInterrupt into Exit(130)), and must not end as 0."""
+    back as 130 (typer turns KeyboardInterrupt into Exit(130)), and must not end as 0. SIGTERM
+    (what Slurm sends at a time limit, and `kill`) stops a run the same way, exit 143."""
     from endopipe.commands.environment import check_installed
 
+    stops: list[BaseException] = []
+
+    def on_sigterm(signum: int, frame: object) -> None:
+        stops.append(_Terminated())
+        raise stops[-1]
+
+    if threading.current_thread() is not threading.main_thread():  # signals go to the main one
+        return _main(argv, check_installed, stops)
+    previous = signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        return _main(argv, check_installed, stops)
+    finally:
+        signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
+
+
+def _main(argv: list[str] | None, check_installed: Callable[[], None], stops: list) -> int:
+    """main's body; `stops` holds the SIGTERM that stopped the run, if one did (typer turns
+    it, as Ctrl-C, into an exit code of 130)."""
     try:
         check_installed()
         code = app(args=argv, standalone_mode=False)
@@ -498,13 +530,15 @@ def main(argv: list[str] | None = None) -> int:
     except typer.Exit as e:
         return e.exit_code
     except typer.Abort:
+        if stops:
+            return interrupted(argv, terminated=True)
         console.print("[bold red]aborted[/bold red]")
         return INTERRUPTED
     except _click_errors() as e:
         console.print(f"[bold red]error:[/bold red] {escape(e.format_message())}", soft_wrap=True)
         return e.exit_code
     except KeyboardInterrupt:
-        return interrupted(argv)
+        return interrupted(argv, terminated=bool(stops))
     except Exception as e:  # an endopipe bug: one line here, the traceback in a log file
         log = Path.home() / ".cache" / "endopipe" / "last_error.log"
         try:
@@ -520,7 +554,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 1
     if code == INTERRUPTED:
-        return interrupted(argv)
+        return interrupted(argv, terminated=bool(stops))
     return code if isinstance(code, int) else 0
 
 

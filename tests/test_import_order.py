@@ -1,7 +1,8 @@
-"""pycolmap imported before cv2 makes cv2.imwrite of a PNG abort; our entry points prevent it.
+"""pycolmap imported before cv2 makes cv2.imwrite of a PNG abort, and its import takes SIGTERM
+over; our entry points prevent both.
 
 `endopipe.stages` makes any later `import pycolmap` import cv2 first (without importing cv2
-itself, so `endopipe --help` stays fast)."""
+itself, so `endopipe --help` stays fast) and puts SIGTERM's handler back."""
 
 from __future__ import annotations
 
@@ -43,3 +44,20 @@ def test_pycolmap_imported_through_the_cli_comes_after_cv2() -> None:
     proc = _python(CLI_THEN_COLMAP)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.strip() == "True"
+
+
+SIGTERM_AFTER_COLMAP = """
+import os, signal, time
+import endopipe.stages
+import pycolmap  # installs glog's failure handler for SIGTERM, among others
+os.kill(os.getpid(), signal.SIGTERM)
+time.sleep(5)
+"""
+
+
+def test_pycolmap_leaves_sigterm_as_it_was() -> None:
+    """glog's handler would print a native stack trace on SIGTERM; the default stays: the
+    process ends by the signal, silently."""
+    proc = _python(SIGTERM_AFTER_COLMAP)
+    assert proc.returncode == -15, proc.stderr[-2000:]
+    assert "stack trace" not in proc.stderr and "SIGTERM" not in proc.stderr

@@ -80,6 +80,30 @@ def test_ctrl_c_mid_stage_exits_130_with_one_line_and_the_rerun_resumes(tmp_path
     assert len(list((wd / "long" / "01_ingest" / "frames").glob("*.png"))) == 240
 
 
+def test_sigterm_mid_stage_ends_as_ctrl_c_does_and_the_rerun_resumes(tmp_path: Path) -> None:
+    """SIGTERM (a Slurm time limit or preemption, `kill`): pycolmap's failure handler would print
+    a native stack trace and kill the process; instead one line, exit 143, the command that
+    resumes, nothing half written."""
+    video = write_video(tmp_path / "long.mp4", textured_frames(240, 320, 256))
+    wd = tmp_path / "wd"
+    args = ["run", str(video), "--workdir", str(wd), "--until", "ingest", "--quiet"]
+    args += ["--set", "ingest.drop_duplicates=false"]
+    cmd = [sys.executable, "-m", "endopipe", *args]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _wait_for_ingest_frames(proc, wd / "long")
+    os.kill(proc.pid, signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 143, stderr[-2000:]
+    lines = [ln for ln in (stdout + stderr).splitlines() if ln.strip()]
+    assert len(lines) == 1, lines
+    assert "terminated (SIGTERM)" in lines[0] and "stack trace" not in stderr
+    assert f"run the same command again: endopipe {' '.join(args)}" in lines[0]
+    assert not (wd / "long" / "01_ingest").exists()
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert len(list((wd / "long" / "01_ingest" / "frames").glob("*.png"))) == 240
+
+
 def test_a_local_worker_ends_with_the_process_that_started_it(tmp_path: Path) -> None:
     """SIGKILL to a batch-like parent only (not its group): its worker process must not run on
     as an orphan."""
