@@ -7,6 +7,7 @@ exit code.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import importlib
 import inspect
@@ -15,12 +16,12 @@ import signal
 import sys
 import threading
 import traceback
+import typing
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
 import typer
-from pydantic import BaseModel, ValidationError
 from rich.markup import escape
 
 from endopipe.commands.cases import prepare_case
@@ -64,42 +65,42 @@ SetOption = Annotated[list[str] | None, typer.Option("--set", help="stage.key=va
 Command = TypeVar("Command", bound=Callable[..., Any])
 
 
-def with_options(**models: type[BaseModel]) -> Callable[[Command], Command]:
-    """Declares a command's options from pydantic models, one option per field (its default,
-    help and lower bound from the field), so options several commands share are written once,
-    where their defaults live. The command gets each model, validated, under its keyword
-    (`recording=RecordingOptions(...)`); a value the model refuses is a usage error naming the
-    option, raised before any work."""
+def with_options(**declared: type[Any]) -> Callable[[Command], Command]:
+    """Declares a command's options from option dataclasses (`pipeline/options.py`), one option
+    per field with its default, help and lower bound, so options several commands share are
+    written once, where their defaults live. The command gets each dataclass, built and checked,
+    under its keyword (`recording=RecordingOptions(...)`); a value it refuses is a usage error
+    naming the option, raised before any work."""
 
     def decorate(fn: Command) -> Command:
         signature = inspect.signature(fn, eval_str=True)
-        kept = [p for p in signature.parameters.values() if p.name not in models]
+        kept = [p for p in signature.parameters.values() if p.name not in declared]
+        hints = {cls: typing.get_type_hints(cls) for cls in declared.values()}
         added = [
             inspect.Parameter(
-                name,
+                f.name,
                 inspect.Parameter.KEYWORD_ONLY,
-                default=field.default,
+                default=f.default,
                 annotation=Annotated[
-                    field.annotation,
-                    typer.Option(help=field.description, min=_lower_bound(field.metadata)),
+                    hints[cls][f.name],
+                    typer.Option(help=f.metadata.get("help"), min=f.metadata.get("min")),
                 ],
             )
-            for model in models.values()
-            for name, field in model.model_fields.items()
+            for cls in declared.values()
+            for f in dataclasses.fields(cls)
         ]
 
         @functools.wraps(fn)
         def command(*args: Any, **kwargs: Any) -> Any:
             built = {}
-            for keyword, model in models.items():
-                values = {name: kwargs.pop(name) for name in model.model_fields}
+            for keyword, cls in declared.items():
+                values = {f.name: kwargs.pop(f.name) for f in dataclasses.fields(cls)}
                 try:
-                    built[keyword] = model(**values)
-                except ValidationError as e:
-                    err = e.errors()[0]
-                    option = "--" + str(err["loc"][0]).replace("_", "-")
-                    reason = str(err.get("ctx", {}).get("error", err["msg"]))
-                    raise typer.BadParameter(reason, param_hint=f"'{option}'") from None
+                    built[keyword] = cls(**values)
+                except ValueError as e:
+                    name, reason = e.args
+                    hint = "'--" + name.replace("_", "-") + "'"
+                    raise typer.BadParameter(reason, param_hint=hint) from None
             return fn(*args, **kwargs, **built)
 
         params = kept + added
@@ -108,11 +109,6 @@ def with_options(**models: type[BaseModel]) -> Callable[[Command], Command]:
         return command  # type: ignore[return-value]
 
     return decorate
-
-
-def _lower_bound(metadata: list[Any]) -> int | None:
-    """A field's `ge` bound, for the option's `min`."""
-    return next((m.ge for m in metadata if hasattr(m, "ge")), None)
 
 
 #: The DAG in order: each stage's module and class.
@@ -133,8 +129,12 @@ def all_stages() -> list[type[Stage]]:
 
 
 def build_pipeline() -> Pipeline:
-    """The DAG with its stages imported: for commands that run stages."""
+    """The DAG with its stages imported: for commands that run stages, which first check the
+    libraries the stages run on (a pycolmap outside the declared range, in one line)."""
+    from endopipe.commands.environment import check_installed
     from endopipe.pipeline.runner import Pipeline
+
+    check_installed()
 
     return Pipeline(all_stages())
 
@@ -499,8 +499,6 @@ def main(argv: list[str] | None = None) -> int:
     With standalone_mode=False typer returns an exit code instead of exiting; Ctrl-C comes
     back as 130 (typer turns KeyboardInterrupt into Exit(130)), and must not end as 0. SIGTERM
     (what Slurm sends at a time limit, and `kill`) stops a run the same way, exit 143."""
-    from endopipe.commands.environment import check_installed
-
     stops: list[BaseException] = []
 
     def on_sigterm(signum: int, frame: object) -> None:
@@ -508,19 +506,18 @@ def main(argv: list[str] | None = None) -> int:
         raise stops[-1]
 
     if threading.current_thread() is not threading.main_thread():  # signals go to the main one
-        return _main(argv, check_installed, stops)
+        return _main(argv, stops)
     previous = signal.signal(signal.SIGTERM, on_sigterm)
     try:
-        return _main(argv, check_installed, stops)
+        return _main(argv, stops)
     finally:
         signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
 
-def _main(argv: list[str] | None, check_installed: Callable[[], None], stops: list) -> int:
+def _main(argv: list[str] | None, stops: list) -> int:
     """main's body; `stops` holds the SIGTERM that stopped the run, if one did (typer turns
     it, as Ctrl-C, into an exit code of 130)."""
     try:
-        check_installed()
         code = app(args=argv, standalone_mode=False)
     except EndopipeError as e:
         console.print(

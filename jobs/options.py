@@ -1,40 +1,44 @@
-"""Where jobs run: the executor and its settings, one model for every command that sends jobs
-(`endopipe batch` its cases, a recording its windows)."""
+"""Where jobs run: the executor and its settings, one declaration for every command that sends
+jobs (`endopipe batch` its cases, a recording its windows). A dataclass read at start-up, like
+`recording.options`: each field's metadata holds its help and lower bound."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
-
-from endopipe.pipeline.executors import EXECUTORS
+from endopipe.pipeline.options import check_bounds
 
 
-class Execution(BaseModel):
+@dataclass(frozen=True)
+class Execution:
     """The executor jobs are sent to, and how many run at once."""
 
-    model_config = ConfigDict(extra="forbid")
+    executor: str = field(
+        default="local",
+        metadata={
+            "help": "Where jobs (a batch's cases, a recording's windows) run: local | slurm | ray."
+        },
+    )
+    jobs: int | None = field(
+        default=None,
+        metadata={
+            "min": 1,
+            "help": "Jobs at once. local: worker processes (default 1); slurm: array parallelism "
+            "(default from the cluster config); ray: slots of a local cluster.",
+        },
+    )
+    cluster_config: Path | None = field(
+        default=None, metadata={"help": "Slurm / Ray settings (default configs/cluster.yaml)."}
+    )
+    ray_address: str | None = field(
+        default=None,
+        metadata={"help": "Ray cluster to join (auto, ray://host:10001); default: a local one."},
+    )
 
-    executor: str = Field(
-        "local",
-        description="Where jobs (a batch's cases, a recording's windows) run: local | slurm | ray.",
-    )
-    jobs: int | None = Field(
-        None,
-        ge=1,
-        description="Jobs at once. local: worker processes (default 1); slurm: array "
-        "parallelism (default from the cluster config); ray: slots of a local cluster.",
-    )
-    cluster_config: Path | None = Field(
-        None, description="Slurm / Ray settings (default configs/cluster.yaml)."
-    )
-    ray_address: str | None = Field(
-        None, description="Ray cluster to join (auto, ray://host:10001); default: a local one."
-    )
+    def __post_init__(self) -> None:
+        from endopipe.pipeline.executors import EXECUTORS  # yaml, multiprocessing: when built
 
-    @field_validator("executor")
-    @classmethod
-    def _known(cls, value: str) -> str:
-        if value not in EXECUTORS:
-            raise ValueError(f"'{value}' is not one of {', '.join(EXECUTORS)}")
-        return value
+        check_bounds(self)
+        if self.executor not in EXECUTORS:
+            raise ValueError("executor", f"'{self.executor}' is not one of {', '.join(EXECUTORS)}")

@@ -1,6 +1,6 @@
-"""The installed libraries endopipe runs on, checked at start-up: a pycolmap older than the one
-pyproject.toml asks for fails deep inside the poses stage (its global mapper's options differ),
-so it is refused in one line before any work."""
+"""The installed libraries the stages run on, checked when a command that runs them starts: a
+pycolmap older than the one pyproject.toml asks for fails deep inside the poses stage (its global
+mapper's options differ), so it is refused in one line before any work."""
 
 from __future__ import annotations
 
