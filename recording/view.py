@@ -40,6 +40,9 @@ class RecordingView:
         self.case_dir = Path(case_dir)
         self.folder = self.case_dir / RECORDING_DIR
         self.windows_dir = self.case_dir / WINDOWS_DIR
+        self.depth_dir = self.folder / DEPTH_DIR  # every posed frame's depth, by source_index
+        self.report_page = self.folder / REPORT_FILE
+        self.mesh_file = self.folder / MESH_FILE
 
     def window_dirs(self) -> list[Path]:
         """The windows run so far, each a case folder, in order."""
@@ -77,15 +80,3 @@ class RecordingView:
         if not path.is_file():
             return []
         return FramesFile.model_validate_json(path.read_text()).frames
-
-    @property
-    def depth_dir(self) -> Path:
-        return self.folder / DEPTH_DIR
-
-    @property
-    def report_page(self) -> Path:
-        return self.folder / REPORT_FILE
-
-    @property
-    def mesh_file(self) -> Path:
-        return self.folder / MESH_FILE

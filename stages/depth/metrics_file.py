@@ -3,17 +3,13 @@
 
 from __future__ import annotations
 
-from pathlib import Path
+from pydantic import ConfigDict
 
-from pydantic import BaseModel, ConfigDict
-
-from endopipe.pipeline.stage import write_json
+from endopipe.stages.metrics.files import MetricsFile
 from endopipe.stages.metrics.scores import DepthScores, ProtocolScores
 
-METRICS_FILE = "metrics.json"
 
-
-class DepthMetrics(BaseModel):
+class DepthMetrics(MetricsFile):
     """metrics.json: flat protocol blocks (stages.metrics.depth), per frame, and held-out image
     quality. Blocks are present only when they were computed (no ground truth: none of the
     depth ones); further keys from the metrics library are kept as they are."""
@@ -43,14 +39,3 @@ class DepthMetrics(BaseModel):
     def headline(self) -> DepthScores | None:
         """Ours' headline block: median-scaled, or affine-invariant for a relative truth."""
         return self.median_scaled or self.affine_invariant
-
-    def write(self, folder: Path) -> None:
-        """metrics.json in `folder`: the keys that were set, nothing added (NaN stays NaN, as
-        the stage's other JSON writes it)."""
-        write_json(Path(folder) / METRICS_FILE, self.model_dump(exclude_unset=True))
-
-    @classmethod
-    def read(cls, folder: Path) -> DepthMetrics | None:
-        """The folder's metrics.json; None when absent (a ValueError when malformed)."""
-        path = Path(folder) / METRICS_FILE
-        return cls.model_validate_json(path.read_text()) if path.is_file() else None

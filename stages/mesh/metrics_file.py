@@ -3,13 +3,11 @@
 
 from __future__ import annotations
 
-from pathlib import Path
+from typing import Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from endopipe.pipeline.stage import write_json
-
-METRICS_FILE = "metrics.json"
+from endopipe.stages.metrics.files import MetricsFile
 
 
 class DistanceBand(BaseModel):
@@ -28,7 +26,7 @@ class DistanceBand(BaseModel):
     gt_share: float | None = None
 
 
-class MeshMetrics(BaseModel):
+class MeshMetrics(MetricsFile):
     """metrics.json as the mesh stage writes it: flat keys, JSON null for inf / nan. The
     evaluation's keys are there when `evaluated`, else `reason` says why not; how the surface
     was made follows. Keys another version wrote are kept (`model_extra`)."""
@@ -77,13 +75,5 @@ class MeshMetrics(BaseModel):
     seen_fraction: float | None = None
     components_removed: int | None = None
 
-    def write(self, folder: Path) -> None:
-        """metrics.json in `folder`: the keys that were set, nothing added."""
-        data = self.model_dump(mode="json", by_alias=True, exclude_unset=True)
-        write_json(Path(folder) / METRICS_FILE, data)
-
-    @classmethod
-    def read(cls, folder: Path) -> MeshMetrics | None:
-        """The folder's metrics.json; None when absent (a ValueError when malformed)."""
-        path = Path(folder) / METRICS_FILE
-        return cls.model_validate_json(path.read_text()) if path.is_file() else None
+    #: JSON values, the by_camera_distance bands under their keys (`from`)
+    dump: ClassVar[dict[str, Any]] = {"mode": "json", "by_alias": True, "exclude_unset": True}

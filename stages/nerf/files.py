@@ -8,5 +8,4 @@ LOSS_PLOT_FILE = "loss.png"
 HELDOUT_PLOT_FILE = "heldout.png"
 #: The held-out frames as the field renders them (16-bit RGB PNG, display-encoded).
 HELDOUT_RGB_DIR = "heldout_rgb"
-METRICS_FILE = "metrics.json"
 REFINED_CAMERAS_FILE = "cameras_refined.json"
