@@ -63,7 +63,7 @@ def assemble(
         window_poses(pipe, view.windows_dir / row.case) if row.status == "ok" else None
         for row in rows
     ]
-    joined = join_windows(plan.names(), poses, plan.windows)
+    joined = join_windows(plan.names(), poses, plan.windows, plan.breaks)
     truth = truth_poses(ingest)
     as_joined = joined
     joined, light = _redraw_for_light(pipe, view, joined, configs, ingest, options, until)

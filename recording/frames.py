@@ -1,13 +1,15 @@
 """A pose and a depth map for every frame of a recording, not only its keyframes.
 
-A frame between two keyframes is registered against the window that posed them: corners of
-each neighbouring keyframe that the window's depth map places in 3D are tracked into the frame
-(Lucas-Kanade, forward-backward checked), and its pose is the PnP fit of those 2D-3D matches
-(OpenCV, RANSAC, started at the keyframe's pose). Its depth is then rendered from that window's
-field, as the depth stage renders a keyframe's. A frame that does not register (washed out, too
-few tracked corners) gets no pose and no depth: unknown, never interpolated.
+A frame that is not a posed keyframe is registered against the windows that posed the keyframes
+around it: corners of each neighbouring keyframe that the window's depth map places in 3D are
+tracked into the frame (Lucas-Kanade, forward-backward checked), and its pose is the PnP fit of
+those 2D-3D matches (OpenCV, RANSAC, started at the keyframe's pose). The window of the keyframe
+before is tried first, then the one after (a frame between two segments is placed in whichever
+it registers to). Its depth is then rendered from that window's field, as the depth stage
+renders a keyframe's. A frame that does not register gets no pose and no depth, unknown and
+never interpolated, and `frames.json` says why (with ingest's own reason for not keeping it).
 
-Frames stream from the input once, in order; one window's baked field is held at a time.
+Frames stream from the input once, in order; the baked fields of two windows are held at a time.
 """
 
 from __future__ import annotations
@@ -32,20 +34,28 @@ from endopipe.stages.camera import Camera, pixel_directions
 from endopipe.stages.ingest.keyframes import track_corners
 
 MIN_INLIERS = 30
+#: Corners taken from each keyframe, and their quality relative to the strongest one. A specular
+#: highlight is the strongest corner of most endoscopic frames: at OpenCV's customary 0.01 it left
+#: 25-66 trackable corners on the tissue of a real sinus recording's keyframes, and 54 of its
+#: frames unregistered; at 0.001 all 54 register with 64-860 inliers.
+CORNERS, CORNER_QUALITY = 1000, 0.001
 
 
 class FramePose(BaseModel):
-    """recording/frames.json: one line per frame from the first keyframe to the last."""
+    """recording/frames.json: one line per frame of the input."""
 
     source_index: int
-    window: str | None
+    window: str | None  # the window it was posed in (or last tried)
     kind: str  # keyframe | registered | unregistered
+    segment: int | None = None  # the segment whose frame and units c2w is in
     inliers: int | None = None
-    c2w: list[list[float]] | None = None  # segment 0's frame and units
+    reason: str | None = None  # unregistered: why
+    dropped: str | None = None  # not a keyframe: ingest's reason (little_motion, blurred, ...)
+    c2w: list[list[float]] | None = None  # its segment's frame and units
 
 
 class FramesFile(BaseModel):
-    """recording/frames.json: every frame from the first keyframe to the last."""
+    """recording/frames.json: every frame of the input."""
 
     frames: list[FramePose]
 
@@ -84,15 +94,20 @@ class WindowSight:
         return Reference(grey, self._valid_depth(self.depth_view, i, 0.5), self.c2w[i])
 
 
-def register(grey: np.ndarray, refs: list[Reference], camera: Camera) -> tuple[Any, int]:
-    """The frame's c2w in the references' frame (None: it does not register) and the inliers."""
+def register(
+    grey: np.ndarray, refs: list[Reference], camera: Camera
+) -> tuple[np.ndarray | None, int, str]:
+    """The frame's c2w in the references' frame (None: it does not register), the inliers, and
+    why not (empty when it registers)."""
     obj, img = [], []
+    tracked = 0
     for ref in refs:
         usable = ((ref.depth > 0) * 255).astype(np.uint8)
-        corners = cv2.goodFeaturesToTrack(ref.grey, 400, 0.01, 5, mask=usable)
+        corners = cv2.goodFeaturesToTrack(ref.grey, CORNERS, CORNER_QUALITY, 3, mask=usable)
         if corners is None:
             continue
         found, ok = track_corners(ref.grey, grey, corners.astype(np.float32), 1.0)
+        tracked += int(ok.sum())
         if not ok.any():
             continue
         uv = corners.reshape(-1, 2)[ok]
@@ -102,8 +117,9 @@ def register(grey: np.ndarray, refs: list[Reference], camera: Camera) -> tuple[A
         obj.append(d @ ref.c2w[:3, :3].T + ref.c2w[:3, 3])
         seen = found.reshape(-1, 2)[ok][keep]
         img.append(pixel_directions(camera, seen[:, 0], seen[:, 1])[:, :2])
-    if not obj or sum(len(o) for o in obj) < MIN_INLIERS:
-        return None, 0
+    matches = sum(len(o) for o in obj)
+    if matches < MIN_INLIERS:
+        return None, 0, f"{tracked} corners tracked from the keyframes (< {MIN_INLIERS})"
     obj_pts, img_pts = np.concatenate(obj), np.concatenate(img)
     w2c = np.linalg.inv(refs[0].c2w)
     rvec, _ = cv2.Rodrigues(w2c[:3, :3])
@@ -120,10 +136,48 @@ def register(grey: np.ndarray, refs: list[Reference], camera: Camera) -> tuple[A
         iterationsCount=200,
     )
     if not ok or inliers is None or len(inliers) < MIN_INLIERS:
-        return None, 0 if inliers is None else len(inliers)
+        kept = 0 if inliers is None else len(inliers)
+        return (
+            None,
+            kept,
+            f"one rigid pose fits {kept} of {matches} tracked corners (< {MIN_INLIERS})",
+        )
     out = np.eye(4)
     out[:3, :3], out[:3, 3] = cv2.Rodrigues(rvec)[0], tvec.reshape(3)
-    return np.linalg.inv(out), len(inliers)
+    return np.linalg.inv(out), len(inliers), ""
+
+
+class Sights:
+    """The windows' sights, the last `keep` used held in memory (a baked field each)."""
+
+    def __init__(self, pipe: Pipeline, windows_dir: Path, depth_cfg: Any, keep: int = 2) -> None:
+        self.pipe, self.windows_dir, self.depth_cfg, self.keep = pipe, windows_dir, depth_cfg, keep
+        self._held: dict[str, WindowSight] = {}
+
+    def __getitem__(self, name: str) -> WindowSight:
+        sight = self._held.pop(name, None)
+        if sight is None:
+            sight = WindowSight(self.pipe, self.windows_dir / name, self.depth_cfg)
+        self._held[name] = sight  # most recent last
+        while len(self._held) > self.keep:
+            self._held.pop(next(iter(self._held)))
+        return sight
+
+
+def attempts(source_index: int, order: list[int], keys: dict) -> list[tuple[str, list[int]]]:
+    """The windows a frame that is no posed keyframe is registered against, in the order tried,
+    each with the keyframes whose corners are tracked: the keyframes around it, in the window
+    of the one before, then of the one after (different windows near a junction, different
+    segments across a break)."""
+    at = int(np.searchsorted(order, source_index))
+    around = [order[k] for k in (at - 1, at) if 0 <= k < len(order)]
+    out: list[tuple[str, list[int]]] = []
+    for k in around:
+        window = keys[k].window
+        if all(window != w for w, _ in out):
+            same = [j for j in around if keys[j].segment == keys[k].segment]
+            out.append((window, same))
+    return out
 
 
 def every_frame(
@@ -134,52 +188,93 @@ def every_frame(
     depth_cfg: Any,
     write_depth: Callable[[int, np.ndarray, np.ndarray], None],
     progress: Callable[[], None] = lambda: None,
+    dropped: dict[int, str] | None = None,
 ) -> list[FramePose]:
-    """Pose (and, through `write_depth(source_index, depth, rgb)`, the depth map in segment 0's
-    units) of every frame from `frames_in` ((source_index, RGB at the working size)) between
-    segment 0's first and last keyframes."""
-    keys = {f.source_index: f for f in joined.frames if f.segment == 0}
+    """Pose (and, through `write_depth(source_index, depth, rgb)`, the depth map in its
+    segment's units) of every frame from `frames_in` ((source_index, RGB at the working
+    size)); `dropped`: why ingest kept a frame as no keyframe."""
+    keys = {f.source_index: f for f in joined.frames}
     order = sorted(keys)
+    dropped = dropped or {}
     if not order:
         return []
-    sights: dict[str, WindowSight] = {}
+    sights = Sights(pipe, windows_dir, depth_cfg)
     out: list[FramePose] = []
     for source_index, rgb in frames_in:
-        if source_index < order[0] or source_index > order[-1]:
-            continue
         progress()
-        before = order[np.searchsorted(order, source_index, side="right") - 1]
-        after = order[min(np.searchsorted(order, source_index), len(order) - 1)]
-        name = keys[before].window
-        if name not in sights:
-            sights.clear()  # one window's field in memory at a time
-            sights[name] = WindowSight(pipe, windows_dir / name, depth_cfg)
-        sight = sights[name]
-        if source_index in keys and keys[source_index].window == name:
-            c2w, kind, inliers = sight.c2w[sight.index[source_index]], "keyframe", None
+        line = FramePose(
+            source_index=source_index,
+            window=None,
+            kind="unregistered",
+            dropped=dropped.get(source_index),
+        )
+        out.append(line)
+        c2w = None
+        if source_index in keys:
+            line.window, line.kind = keys[source_index].window, "keyframe"
+            sight = sights[line.window]
+            c2w = sight.c2w[sight.index[source_index]]
         else:
-            refs = [r for k in {before, after} if (r := sight.reference(k)) is not None]
             grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-            c2w, inliers = register(grey, refs, sight.camera) if refs else (None, 0)
-            kind = "registered" if c2w is not None else "unregistered"
+            why = []
+            for name, around in attempts(source_index, order, keys):
+                sight = sights[name]
+                line.window = name
+                refs = [r for k in around if (r := sight.reference(k)) is not None]
+                if not refs:
+                    why.append(f"{name}: no depth at keyframes {around}")
+                    continue
+                c2w, line.inliers, reason = register(grey, refs, sight.camera)
+                if c2w is not None:
+                    line.kind = "registered"
+                    break
+                why.append(f"{name}: {reason}")
+            line.reason = "; ".join(why) if c2w is None else None
         if c2w is None:
-            out.append(
-                FramePose(source_index=source_index, window=name, kind=kind, inliers=inliers)
-            )
             continue
         depth = sight.render(sight.camera, c2w, None, colour=False)["depth"]
-        scale = np.float32(joined.depth_scale(name, source_index))
+        scale = np.float32(joined.depth_scale(line.window, source_index))
         write_depth(source_index, (depth * scale).astype(np.float32), rgb)
-        out.append(
-            FramePose(
-                source_index=source_index,
-                window=name,
-                kind=kind,
-                inliers=inliers,
-                c2w=joined.place(name, source_index, c2w).tolist(),
-            )
-        )
+        line.segment = joined.segment_of.get(line.window)
+        line.c2w = joined.place(line.window, source_index, c2w).tolist()
     return out
+
+
+#: Pixels a frame keeps for the one-scale score (a fixed sample: the truth of a long synthetic
+#: recording, every pixel of thousands of frames, would not fit in memory).
+ONE_SCALE_PIXELS = 2000
+
+
+def sampled_pairs(
+    ours: np.ndarray, truth: np.ndarray, fov: np.ndarray | None, seed: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Our depth and the truth's at up to ONE_SCALE_PIXELS of the pixels both have."""
+    from endopipe.stages.metrics.depth import valid_depth_pixels
+
+    v = np.flatnonzero(valid_depth_pixels(ours, truth, fov))
+    if len(v) > ONE_SCALE_PIXELS:
+        v = np.random.default_rng(seed).choice(v, ONE_SCALE_PIXELS, replace=False)
+    return ours.reshape(-1)[v], truth.reshape(-1)[v]
+
+
+def one_scale_abs_rel(
+    pairs: dict[int, tuple[np.ndarray, np.ndarray]], poses: list[FramePose]
+) -> float | None:
+    """AbsRel with one scale for each segment (the median truth-to-ours ratio over all its
+    frames), the frames' mean: what a per-frame scale hides, a scale that drifts along the path.
+    Segments are scaled apart: their units are not tied to each other."""
+    segment = {p.source_index: p.segment for p in poses}
+    by_segment: dict[int, list[int]] = {}
+    for i in pairs:
+        if segment.get(i) is not None:
+            by_segment.setdefault(segment[i], []).append(i)
+    errors = []
+    for frames in by_segment.values():
+        s = np.median(np.concatenate([pairs[i][1] / pairs[i][0] for i in frames]))
+        errors += [
+            float(np.mean(np.abs(s * pairs[i][0] - pairs[i][1]) / pairs[i][1])) for i in frames
+        ]
+    return float(np.mean(errors)) if errors else None
 
 
 def pose_every_frame(
@@ -212,6 +307,7 @@ def pose_every_frame(
     except InputError:
         pass
     scores: dict[int, dict[str, float]] = {}
+    pairs: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # (ours, truth) on sampled pixels
     guesses: dict[int, float] = {}  # the brightness guess, on exactly our pixels
     fov = ingest.fov()
     # A relative ground truth (C3VD's panel, an affine proxy of depth) is scored as the depth
@@ -233,14 +329,19 @@ def pose_every_frame(
         m = frame_metrics(depth, truth, fov)
         if np.isfinite(m["abs_rel"]):
             scores[i] = m
+            if not relative:
+                pairs[i] = sampled_pairs(depth, truth, fov, seed=i)
             ours = (depth > 0) if fov is None else (depth > 0) & (fov > 0)
             guesses[i] = frame_metrics(brightness_guess(rgb), truth, ours)["abs_rel"]
 
-    frames_in = ((f.source_index, resize(f.rgb, size)) for f in source.frames())
-    seg = [f.source_index for f in joined.frames if f.segment == 0]
-    total = (max(seg) - min(seg) + 1) if seg else 0
+    # the frames ingest judged (its stride, start and end): kept as keyframes or dropped
+    dropped = {i: why for why, idx in ingest.file.dropped_frames.items() for i in idx}
+    judged = dropped.keys() | {f.source_index for f in ingest.frames}
+    frames_in = (
+        (f.source_index, resize(f.rgb, size)) for f in source.frames() if f.source_index in judged
+    )
     with Progress(console=console, transient=True) as bar:
-        task = bar.add_task("every frame", total=total)
+        task = bar.add_task("every frame", total=len(judged))
         poses = every_frame(
             pipe,
             frames_in,
@@ -249,6 +350,7 @@ def pose_every_frame(
             configs["depth"],
             write_depth,
             lambda: bar.advance(task),
+            dropped,
         )
     write_json(staging / FRAMES_FILE, FramesFile(frames=poses).model_dump(mode="json"))
     summary.frames = len(poses)
@@ -265,5 +367,6 @@ def pose_every_frame(
                 np.mean([m["spearman"] for m in scores.values()])
             )
         summary.depth_frames_scored = len(scores)
+        summary.depth_abs_rel_one_scale = one_scale_abs_rel(pairs, poses)
         summary.brightness_guess_abs_rel = float(np.nanmean(list(guesses.values())))
     return poses

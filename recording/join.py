@@ -142,10 +142,13 @@ def join_windows(
     names: list[str],
     poses: list[dict[int, np.ndarray] | None],
     frames: list[list[int]],
+    breaks: dict[int, str] | None = None,
 ) -> Joined:
     """Chain the windows (in recording order): `poses[k]` maps a source_index to window k's
-    c2w (None: the window failed), `frames[k]` is window k's keyframes. Each keyframe takes
+    c2w (None: the window failed), `frames[k]` is window k's keyframes, `breaks` the windows
+    that start a new stretch and why (never joined to the window before). Each keyframe takes
     its pose from the window in which it sits nearest the middle."""
+    breaks = breaks or {}
     placed: dict[str, tuple[int, Sim3]] = {}
     junctions: list[Junction] = []
     segment = -1
@@ -156,6 +159,11 @@ def join_windows(
                 junctions.append(
                     Junction(a=prev, b=name, shared=0, joined=False, reason=f"{name} failed")
                 )
+            continue
+        if k in breaks:
+            junctions.append(Junction(a=prev, b=name, shared=0, joined=False, reason=breaks[k]))
+            segment += 1
+            placed[name] = (segment, Sim3())
             continue
         if prev is None or prev not in placed:
             if prev is not None:

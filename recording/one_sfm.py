@@ -22,6 +22,7 @@ import hashlib
 import shutil
 from pathlib import Path
 
+import numpy as np
 from rich.console import Console
 from rich.markup import escape
 
@@ -51,6 +52,27 @@ def pose_once(pipe: Pipeline, case_dir: Path, row: CaseRow, console: Console) ->
         if old != folder:
             shutil.rmtree(old, ignore_errors=True)
     return folder
+
+
+def stretch_cuts(pipe: Pipeline, case_dir: Path) -> dict[int, str]:
+    """Where the one SfM hangs together by few points (`stages/poses/links.py`): the keyframe
+    (source_index) that starts each stretch after the first, and why. Windows never straddle
+    such a link: a stretch glued on by a few points may be turned against the rest."""
+    from endopipe.stages.poses.links import cutting_links
+
+    verdict = pipe.view(case_dir, "poses").verdict()
+    if verdict is None or not verdict.weak_links:
+        return {}
+    source_of = {f.index: f.source_index for f in pipe.view(case_dir, "ingest").frames}
+    registered = np.array([f.index for f in verdict.frames if f.status != "unregistered"])
+    return {
+        source_of[link.before]: (
+            f"the one SfM holds keyframes {source_of[link.after]} and {source_of[link.before]} "
+            f"together by {link.points} points ({link.share:.0%} of those seen near): "
+            "posed apart"
+        )
+        for link in cutting_links(registered, verdict.weak_links)
+    }
 
 
 def window_settings(folder: Path) -> dict[str, dict]:

@@ -74,6 +74,41 @@ def timeline(
     return _img(fig)
 
 
+def unposed(frames: list[FramePose] | None, most: int = 30) -> Markup:
+    """The runs of frames left without a pose and depth, each with why (its first frame's
+    reason, and ingest's for not keeping it)."""
+    if not frames:
+        return Markup("<p class='muted'>Frames were not posed one by one (no depth maps yet).</p>")
+    runs: list[list[FramePose]] = []
+    for f in frames:
+        if f.c2w is not None:
+            continue
+        if runs and runs[-1][-1].source_index == f.source_index - 1:
+            runs[-1].append(f)
+        else:
+            runs.append([f])
+    if not runs:
+        return Markup(f"<p>All {len(frames)} frames have a pose and a depth map.</p>")
+    rows = "".join(
+        f"<tr><td>{r[0].source_index}"
+        + (f"-{r[-1].source_index}" if len(r) > 1 else "")
+        + f"</td><td>{len(r)}</td><td>{escape(r[0].dropped or 'kept')}</td>"
+        f"<td>{escape(r[0].reason or '')}</td></tr>"
+        for r in runs[:most]
+    )
+    more = (
+        f"<p class='muted'>and {len(runs) - most} more runs (frames.json)</p>"
+        if len(runs) > most
+        else ""
+    )
+    lost = sum(len(r) for r in runs)
+    return Markup(
+        f"<p>{lost} of {len(frames)} frames have no pose and no depth: unknown, never "
+        "interpolated.</p><table><tr><th>frames</th><th>count</th><th>ingest</th>"
+        f"<th>why no pose (the first frame's)</th></tr>{rows}</table>{more}"
+    )
+
+
 def trajectory_figure(joined: Joined, truth: list[np.ndarray] | None) -> Markup:
     """The joined camera centres, each coordinate against the path's main axis, with the
     truth aligned onto them (a similarity) where there is one."""
@@ -94,15 +129,17 @@ def trajectory_figure(joined: Joined, truth: list[np.ndarray] | None) -> Markup:
         q = (c - centre) @ axes.T
         for j, ax in enumerate(panels):
             ax.plot(q[:, 0], q[:, j + 1], ".-", ms=2, lw=0.8, label=f"joined, segment {k}")
-    if truth is not None:
-        first = [f for f in joined.frames if f.segment == 0 and f.source_index < len(truth)]
-        if len(first) >= 3:
-            est = np.array([f.c2w for f in first])[:, :3, 3]
-            gt = np.array([truth[f.source_index][:3, 3] for f in first])
+    for k in range(joined.segments if truth is not None else 0):
+        own = [f for f in joined.frames if f.segment == k and f.source_index < len(truth)]
+        if len(own) >= 3:  # each segment against the truth aligned onto it alone
+            est = np.array([f.c2w for f in own])[:, :3, 3]
+            gt = np.array([truth[f.source_index][:3, 3] for f in own])
             s, r, t = umeyama(gt, est)
             q = (s * gt @ r.T + t - centre) @ axes.T
             for j, ax in enumerate(panels):
-                ax.plot(q[:, 0], q[:, j + 1], "k--", lw=0.8, label="truth (aligned)")
+                ax.plot(
+                    q[:, 0], q[:, j + 1], "k--", lw=0.8, label="truth (aligned)" if k == 0 else None
+                )
     for j, ax in enumerate(panels):
         ax.set_ylabel(("across", "up")[j])
     panels[-1].set_xlabel("along the path (the joined trajectory's units)")
@@ -157,10 +194,21 @@ def write_report(
         ),
         ("segments", str(summary.segments)),
         ("ATE, joined trajectory (% of path)", fmt(summary.ate_percent_of_path)),
+        (
+            "ATE by segment, each aligned on its own (% of its path)",
+            escape(
+                "; ".join(
+                    f"{a.segment}: {a.percent_of_path:.2f} ({a.keyframes} keyframes)"
+                    for a in summary.ate_by_segment
+                )
+                or "—"
+            ),
+        ),
         ("ATE as joined, before the light's scale (% of path)", fmt(summary.ate_as_joined_pct)),
         ("frames posed", f"{summary.frames_posed} of {summary.frames}" if summary.frames else "—"),
         (f"depth {absrel}, every posed frame", fmt(summary.depth_abs_rel_all_frames)),
         (f"depth {absrel}, keyframes", fmt(summary.depth_abs_rel_keyframes)),
+        ("depth AbsRel, one scale a segment", fmt(summary.depth_abs_rel_one_scale)),
         ("depth Spearman, every posed frame", fmt(summary.depth_spearman_all_frames)),
         ("depth coverage, every posed frame", fmt(summary.depth_coverage_all_frames)),
         ("the brightness guess's AbsRel, same pixels", fmt(summary.brightness_guess_abs_rel)),
@@ -211,6 +259,7 @@ def write_report(
                 "title": "Timeline",
                 "body": timeline(kept, dropped, plan, joined, frames),
             },
+            {"key": "unposed", "title": "Frames without a pose", "body": unposed(frames)},
             {"key": "windows", "title": "Windows", "body": windows},
             {
                 "key": "trajectory",

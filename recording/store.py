@@ -32,7 +32,7 @@ from endopipe.recording.windows import WindowPlan
 
 NAME = "recording"
 #: Bumped when what the recording writes from the same windows changes meaning.
-VERSION = 5
+VERSION = 6
 
 
 class RecordingInputs:

@@ -37,6 +37,15 @@ class WindowRow(Summary):
     wall_s: float = 0.0
 
 
+class SegmentAte(Summary):
+    """One segment's trajectory against the truth, aligned on its own (segments are not tied
+    to each other)."""
+
+    segment: int
+    keyframes: int
+    percent_of_path: float
+
+
 class RecordingSummary(Summary):
     """recording/summary.json: the windows, the junctions, the joined trajectory's scores."""
 
@@ -49,15 +58,18 @@ class RecordingSummary(Summary):
     reasons: list[str] = []
     ate_percent_of_path: float | None = None  # joined trajectory against the truth (segment 0)
     ate_frames: int | None = None
+    ate_by_segment: list[SegmentAte] = []  # every segment's, each aligned on its own
     light_scale: LightScale | None = None  # the path's scale drift, measured from the light
     ate_as_joined_pct: float | None = None  # the ATE before the path was redrawn for it
-    frames: int | None = None  # frames from segment 0's first keyframe to its last
-    frames_posed: int | None = None  # of them, posed (keyframes, and frames registered)
+    frames: int | None = None  # frames ingest judged (kept as keyframes, or dropped)
+    frames_posed: int | None = None  # of them, posed and given depth (keyframes, registered)
     # Depth of every posed frame with truth: "exact" truth is scored median-scaled, a "relative"
     # one (an affine proxy of depth, as C3VD's) after a least-squares scale and shift.
     depth_gt_kind: str | None = None
     depth_abs_rel_all_frames: float | None = None
     depth_abs_rel_keyframes: float | None = None  # the same over the keyframes alone
+    # exact truth: one scale for each segment's frames instead of one a frame (2,000 pixels a frame)
+    depth_abs_rel_one_scale: float | None = None
     depth_spearman_all_frames: float | None = None  # relative truth: rank correlation
     depth_coverage_all_frames: float | None = None  # share of the truth's pixels given a depth
     depth_frames_scored: int | None = None

@@ -7,7 +7,7 @@ import numpy as np
 
 from endopipe.jobs.rows import CaseRow
 from endopipe.recording.join import Joined
-from endopipe.recording.summary import RecordingSummary, WindowRow
+from endopipe.recording.summary import RecordingSummary, SegmentAte, WindowRow
 from endopipe.recording.windows import WindowPlan
 
 
@@ -35,7 +35,13 @@ def summarise(
     reasons += [f"{w.name}: poses doubtful" for w in windows if w.pose_verdict == "doubtful"]
     reasons += [f"{j.a}-{j.b} not joined: {j.reason}" for j in joined.junctions if not j.joined]
     ate, frames = joined_ate(joined, truth)
+    by_segment = []
+    for k in range(joined.segments):
+        pct, n = joined_ate(joined, truth, k)
+        if pct is not None and n is not None:
+            by_segment.append(SegmentAte(segment=k, keyframes=n, percent_of_path=pct))
     return RecordingSummary(
+        ate_by_segment=by_segment,
         keyframes=len({i for w in plan.windows for i in w}),
         windows=windows,
         segments=joined.segments,
@@ -47,13 +53,16 @@ def summarise(
     )
 
 
-def joined_ate(joined: Joined, truth: list[np.ndarray] | None) -> tuple[float | None, int | None]:
-    """The first segment's ATE (% of the path) against the truth and the keyframes it is over."""
+def joined_ate(
+    joined: Joined, truth: list[np.ndarray] | None, segment: int = 0
+) -> tuple[float | None, int | None]:
+    """A segment's ATE (% of its path, aligned on its own) against the truth and the keyframes
+    it is over."""
     from endopipe.stages.metrics.depth import pose_metrics
 
     if truth is None:
         return None, None
-    est = {f.source_index: np.array(f.c2w) for f in joined.frames if f.segment == 0}
+    est = {f.source_index: np.array(f.c2w) for f in joined.frames if f.segment == segment}
     gt = {i: truth[i] for i in est if i < len(truth)}
     if len(gt) < 3:
         return None, None

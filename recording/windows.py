@@ -3,7 +3,9 @@ each a case of the same stages with its own settings.
 
 Neighbouring windows share `overlap` keyframes: the join estimates the similarity between their
 reconstructions from those shared cameras (`RecordingOptions` keeps the overlap at 3 or more and
-under the window's length).
+under the window's length). Where the recording's one SfM hangs together by few points (a weak
+link, `stages/poses/links.py`), the keyframes either side are cut into windows of their own: no
+window straddles the link, and the join starts a new segment there.
 """
 
 from __future__ import annotations
@@ -29,6 +31,11 @@ class WindowPlan(BaseModel):
     size: int = Field(description="Keyframes per window, at most.")
     overlap: int = Field(description="Keyframes shared by neighbouring windows.")
     windows: list[list[int]] = Field(description="Each window's keyframes, by source_index.")
+    breaks: dict[int, str] = Field(
+        default_factory=dict,
+        description="Windows that start a new stretch (by position), and why: the keyframes "
+        "before them are not placed against theirs.",
+    )
 
     def name(self, k: int) -> str:
         """Window k's case name under `<case>/windows/`."""
@@ -38,22 +45,36 @@ class WindowPlan(BaseModel):
         return [self.name(k) for k in range(len(self.windows))]
 
 
-def plan_windows(keyframes: list[int], options: RecordingOptions) -> WindowPlan:
+def plan_windows(
+    keyframes: list[int], options: RecordingOptions, cuts: dict[int, str] | None = None
+) -> WindowPlan:
     """As few windows of at most `options.window` keyframes (source indices, ascending) as cover
     them with `options.overlap` shared between neighbours, all of one length and evenly spread
-    (no short tail window, no window that repeats most of its neighbour)."""
-    size, overlap = options.window, options.overlap
+    (no short tail window, no window that repeats most of its neighbour). `cuts`: keyframes
+    that start a new stretch (and why); each stretch is cut on its own."""
+    cuts = cuts or {}
+    stretches: list[list[int]] = []
+    for i in keyframes:
+        if not stretches or i in cuts:
+            stretches.append([])
+        stretches[-1].append(i)
+    windows: list[list[int]] = []
+    breaks: dict[int, str] = {}
+    for stretch in stretches:
+        if windows:
+            breaks[len(windows)] = cuts[stretch[0]]
+        windows += _cut(stretch, options.window, options.overlap)
+    return WindowPlan(size=options.window, overlap=options.overlap, windows=windows, breaks=breaks)
+
+
+def _cut(keyframes: list[int], size: int, overlap: int) -> list[list[int]]:
     n = len(keyframes)
     if n <= size:
-        return WindowPlan(size=size, overlap=overlap, windows=[list(keyframes)])
+        return [list(keyframes)]
     count = math.ceil((n - overlap) / (size - overlap))
     length = math.ceil((n + (count - 1) * overlap) / count)
     starts = np.linspace(0, n - length, count).round().astype(int)
-    return WindowPlan(
-        size=size,
-        overlap=overlap,
-        windows=[list(keyframes[a : a + length]) for a in starts],
-    )
+    return [list(keyframes[a : a + length]) for a in starts]
 
 
 def is_long_input(

@@ -27,7 +27,7 @@ from endopipe.pipeline.runner import Pipeline
 from endopipe.pipeline.stage import CaseInfo, StageConfig
 from endopipe.recording.assemble import assemble
 from endopipe.recording.join import Joined
-from endopipe.recording.one_sfm import pose_once
+from endopipe.recording.one_sfm import pose_once, stretch_cuts
 from endopipe.recording.options import RecordingOptions
 from endopipe.recording.summary import RecordingSummary, light_line
 from endopipe.recording.view import RecordingView
@@ -59,17 +59,12 @@ def run_recording(
     info = CaseInfo.load(case_dir)
     ingest = pipe.view(case_dir, "ingest")
     keyframes = [f.source_index for f in ingest.frames]
-    plan = plan_windows(keyframes, options)
     view = RecordingView(case_dir)
     windows_dir = view.windows_dir.resolve()
     windows_dir.mkdir(exist_ok=True)
-    console.print(
-        f"[bold]{escape(info.name)}[/bold]: a recording of {len(keyframes)} keyframes in "
-        f"{len(plan.windows)} windows of {len(plan.windows[0])} ({plan.overlap} or more shared), "
-        f"{execution.executor} executor"
-    )
     send = _sender(case_fn, execution, windows_dir, console)
     shared = None
+    cuts: dict[int, str] = {}
     if len(keyframes) <= options.one_sfm_up_to and (
         until is None or pipe.index(until) >= pipe.index("poses")
     ):
@@ -85,6 +80,16 @@ def run_recording(
             force=force,
         )
         shared = pose_once(pipe, case_dir, send([whole], lambda row: None)[0], console)
+        if shared is not None:
+            cuts = stretch_cuts(pipe, case_dir)
+    plan = plan_windows(keyframes, options, cuts)
+    console.print(
+        f"[bold]{escape(info.name)}[/bold]: a recording of {len(keyframes)} keyframes in "
+        f"{len(plan.windows)} windows of up to {max(map(len, plan.windows))} "
+        f"({plan.overlap} or more shared), {execution.executor} executor"
+    )
+    for k, why in plan.breaks.items():
+        console.print(f"[yellow]{plan.name(k)} starts a new stretch: {escape(why)}[/yellow]")
     tasks = [
         CaseTask(
             name=plan.name(k),
@@ -219,15 +224,28 @@ def _print_summary(
         if summary.ate_percent_of_path is not None
         else ""
     )
+    if len(summary.ate_by_segment) > 1:
+        ate += (
+            " (each segment on its own: "
+            + ", ".join(
+                f"{a.percent_of_path:.2f}% over {a.keyframes}" for a in summary.ate_by_segment
+            )
+            + ")"
+        )
     if summary.depth_abs_rel_all_frames is not None:
         relative = summary.depth_gt_kind == "relative"
         spearman = f"Spearman {summary.depth_spearman_all_frames:.3f}, " if relative else ""
+        one_scale = (
+            f"; one scale a segment {summary.depth_abs_rel_one_scale:.4f}"
+            if summary.depth_abs_rel_one_scale is not None
+            else ""
+        )
         ate += (
             f"; {summary.frames_posed} of {summary.frames} frames posed, depth {spearman}"
             f"{'SSI-' if relative else ''}AbsRel {summary.depth_abs_rel_all_frames:.4f}, "
             f"coverage {summary.depth_coverage_all_frames:.3f} over "
             f"{summary.depth_frames_scored} frames (keyframes alone "
-            f"{summary.depth_abs_rel_keyframes:.4f}; a guess from shading alone "
+            f"{summary.depth_abs_rel_keyframes:.4f}{one_scale}; a guess from shading alone "
             f"{summary.brightness_guess_abs_rel:.3f})"
         )
     if summary.chamfer_pct_radius is not None:

@@ -38,6 +38,16 @@ class VerdictConfig(BaseModel):
     min_jump_deg: float = Field(
         1.0, ge=0, description="Turns smaller than this (deg) are never a jump."
     )
+    min_link_share: float = Field(
+        0.35,
+        ge=0,
+        le=1,
+        description="A cut between consecutive registered frames is weak when the points seen on "
+        "both sides are a smaller share than this of those its 3 neighbouring frames see on the "
+        "thinner side: the stretches either side are hardly placed against each other, the "
+        "sequence is doubtful and a recording poses them as separate segments (healthy "
+        "models: 0.70 or more; a sinus stretch glued on 61 degrees wrong: 0.23).",
+    )
     max_depth_drift: float = Field(
         4.0,
         gt=1,

@@ -20,6 +20,13 @@ from scipy.ndimage import median_filter
 
 from endopipe.stages.camera import rotation_angle_deg, umeyama
 from endopipe.stages.poses.config import VerdictConfig
+from endopipe.stages.poses.links import (
+    WeakLink,
+    cutting_links,
+    link_strength,
+    stretches,
+    weak_links,
+)
 
 Status = Literal["ok", "doubtful", "not assessed"]
 
@@ -34,6 +41,8 @@ class FrameEvidence:
     reprojection_px: np.ndarray  # (N,) mean reprojection error of those (nan: none)
     median_depth: np.ndarray  # (N,) median camera-z of those points (nan: none)
     focal_px: float | None = None  # the shared camera's mean focal length (None: not known)
+    link_points: np.ndarray | None = None  # (N-1,) points spanning each cut (links.py)
+    link_share: np.ndarray | None = None  # (N-1,) their share of the points seen near it
 
     @property
     def centres(self) -> np.ndarray:
@@ -59,8 +68,9 @@ def evidence_from_reconstruction(rec, index_of: dict[str, int]) -> FrameEvidence
             proj = np.asarray(camera.img_from_cam(np.ascontiguousarray(z), False), np.float64)
             error = float(np.mean(np.linalg.norm(proj - xy, axis=1)))
         depth = float(np.median(z[:, 2])) if len(ids) else np.nan
-        rows.append((index_of[image.name], np.linalg.inv(w2c), len(ids), error, depth))
+        rows.append((index_of[image.name], np.linalg.inv(w2c), len(ids), error, depth, ids))
     rows.sort(key=lambda r: r[0])
+    link_points, link_share = link_strength([np.array(r[5], dtype=np.int64) for r in rows])
     cameras = list(rec.cameras.values())
     return FrameEvidence(
         index=np.array([r[0] for r in rows], dtype=np.int64),
@@ -69,6 +79,8 @@ def evidence_from_reconstruction(rec, index_of: dict[str, int]) -> FrameEvidence
         reprojection_px=np.array([r[3] for r in rows], dtype=np.float64),
         median_depth=np.array([r[4] for r in rows], dtype=np.float64),
         focal_px=float(cameras[0].mean_focal_length()) if len(cameras) == 1 else None,
+        link_points=link_points,
+        link_share=link_share,
     )
 
 
@@ -94,6 +106,7 @@ class PoseVerdict(BaseModel):
     disagreement_pct: float | None = None  # the two mappers' RMS difference, % of path
     others: dict[str, str] = {}  # mapper not kept -> why
     frames: list[FrameVerdict] = []
+    weak_links: list[WeakLink] = []  # cuts few points span (links.py), in frame order
 
     def doubtful(self) -> list[FrameVerdict]:
         """Registered frames called doubtful (unregistered ones are not: they have no pose)."""
@@ -135,6 +148,11 @@ def judge(
     for k, why in jumps(ev, cfg):
         for i in (ev.index[k], ev.index[k + 1]):
             frames[int(i)].reasons.append(why)
+    links = []
+    if ev.link_points is not None and ev.link_share is not None:
+        links = weak_links(ev.index, ev.link_points, ev.link_share, cfg.min_link_share)
+    if links:
+        seq.append(loose_stretches(ev, links, frames, cfg.min_link_share))
     drift = depth_drift(ev.median_depth)
     if drift is not None and drift > cfg.max_depth_drift:
         seq.append(
@@ -175,6 +193,34 @@ def judge(
         depth_drift=None if drift is None else round(drift, 3),
         disagreement_pct=None if disagreement is None else round(disagreement, 3),
         frames=list(frames.values()),
+        weak_links=links,
+    )
+
+
+def loose_stretches(
+    ev: FrameEvidence, links: list[WeakLink], frames: dict[int, FrameVerdict], min_share: float
+) -> str:
+    """Every stretch but the longest, between weak links, is doubtful (its frames say by how
+    few points it hangs on); the sequence's reason, in words."""
+    parts = stretches(ev.index, cutting_links(ev.index, links))
+    longest = max(parts, key=len)
+    for part in parts:
+        if part is longest:
+            continue
+        bounding = [w for w in links if w.before == part[0] or w.after == part[-1]]
+        link = min(bounding, key=lambda w: w.share)
+        for i in part:
+            frames[i].reasons.append(
+                f"in frames {part[0]}-{part[-1]}, held to the rest by {link.points} points"
+            )
+    cuts = ", ".join(
+        f"{link.points} points ({link.share:.0%} of those seen near) between frames "
+        f"{link.after} and {link.before}"
+        for link in links
+    )
+    return (
+        f"the model hangs together by few points: {cuts} (< {min_share:.0%}); its "
+        f"{len(parts)} stretches may be placed wrong against each other"
     )
 
 
