@@ -67,6 +67,9 @@ def timeline(
         lost = [f.source_index for f in frames if f.c2w is None]
         ax.vlines(posed, 0.3, 0.9, color="#1565c0", lw=0.6, label="posed")
         ax.vlines(lost, 0.3, 0.9, color="#c62828", lw=1, label="no pose")
+        doubt = [f.source_index for f in frames if f.doubt]
+        if doubt:
+            ax.vlines(doubt, 0.2, 1.0, color="#ef6c00", lw=1.5, label="keyframe doubtful")
     ax.set_yticks([0.6, 1.7, 3.0], ["frames posed", "windows", "ingest"])
     ax.set_xlabel("frame of the input")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.35), ncol=8, fontsize=7, frameon=False)

@@ -63,6 +63,7 @@ class RecordingSummary(Summary):
     ate_as_joined_pct: float | None = None  # the ATE before the path was redrawn for it
     frames: int | None = None  # frames ingest judged (kept as keyframes, or dropped)
     frames_posed: int | None = None  # of them, posed and given depth (keyframes, registered)
+    keyframes_doubtful: list[int] = []  # registered from a neighbour, away from their SfM pose
     # Depth of every posed frame with truth: "exact" truth is scored median-scaled, a "relative"
     # one (an affine proxy of depth, as C3VD's) after a least-squares scale and shift.
     depth_gt_kind: str | None = None

@@ -246,6 +246,23 @@ def test_a_frame_between_keyframes_registers_on_their_depth(withdrawal: Path) ->
     washed = events["washed_out"][0]
     c2w, _, why = register(grey(washed), [ref(washed - 1)], camera)
     assert c2w is None and "corners tracked" in why, why
+    # a keyframe's SfM pose checked against its registration from the keyframe before it
+    from endopipe.recording.frames import second_opinion
+
+    class Sight:  # a window's keyframes as second_opinion reads them: exact depth here
+        def __init__(self) -> None:
+            self.camera = camera
+
+        def reference(self, i: int) -> Reference:
+            return ref(i)
+
+    true = np.array(poses[a + 4])
+    assert second_opinion(grey(a + 4), a + 4, true, Sight(), [a, a + 4]) is None
+    off = true.copy()
+    off[:3, :3] = off[:3, :3] @ cv2.Rodrigues(np.array([0.0, 0.2, 0.0]))[0]  # 11.5 deg
+    off[:3, 3] += (true[:3, 3] - np.array(poses[a])[:3, 3]) * np.array([1.0, -1.0, 0.5])
+    doubt = second_opinion(grey(a + 4), a + 4, off, Sight(), [a, a + 4])
+    assert doubt is not None and "from its SfM pose" in doubt, doubt
 
 
 @pytest.mark.slow
@@ -401,15 +418,18 @@ def test_a_withdrawal_through_windows_to_one_mesh_is_redrawn_by_the_light(
     assert summary.chamfer_pct_radius < 16.0
 
 
-#: The sinus excerpt's bounds, from its spread (see the test).
-SINUS_ATE_PCT, SINUS_POSED, SINUS_ABS_REL = 3.0, 95, 0.15
+#: The sinus excerpt's bounds, from two NeRF seeds (0, 1): the first segment's ATE 0.79% both
+#: (the authors' SfM as the reference), 99 of 100 frames posed, depth AbsRel 0.1248-0.1259.
+SINUS_ATE_PCT, SINUS_POSED, SINUS_ABS_REL = 1.5, 95, 0.15
 
 
 @pytest.mark.slow
 def test_a_real_sinus_stretch_where_the_scope_speeds_up(shared_data: Path, tmp_path: Path) -> None:
     """The last 100 frames of the in-vivo sinus recording, whose scope moves about nine times
-    faster a frame over its last 25, through windows of 20 keyframes posed by one SfM: each
-    segment agrees with the authors' SfM, nearly every frame gets a pose and depth, and every
+    faster a frame over its last 25, through windows of 20 keyframes posed by one SfM (10 min on
+    two cores). The one SfM holds the quick stretch by a few points: it becomes a segment of its
+    own instead of bending the rest, which agrees with the authors' SfM; the two end keyframes
+    the mapper misplaced are called doubtful; nearly every frame gets a pose and depth, and every
     frame without one says why."""
     from tests.sinus_excerpt import write_excerpt
 
@@ -419,11 +439,12 @@ def test_a_real_sinus_stretch_where_the_scope_speeds_up(shared_data: Path, tmp_p
     assert main([*args, "--set", "ingest.keyframes.mode=content"]) == 0
     view = RecordingView(wd / "sinus")
     s = view.summary
-    frames = view.frames()
     print(s.model_dump_json(exclude={"windows"}))
-    assert s.one_sfm and len(s.windows) >= 2
-    worst = max(a.percent_of_path for a in s.ate_by_segment)
-    assert worst < SINUS_ATE_PCT, s.ate_by_segment
+    assert s.one_sfm and s.segments == 2 and s.verdict == "doubtful"
+    assert any("posed apart" in r for r in s.reasons), s.reasons
+    first = s.ate_by_segment[0]
+    assert first.segment == 0 and first.percent_of_path < SINUS_ATE_PCT, s.ate_by_segment
+    assert 99 in s.keyframes_doubtful  # the last frame: 21% of the path off in the full recording
     assert s.frames == 100 and s.frames_posed is not None and s.frames_posed >= SINUS_POSED
     assert s.depth_abs_rel_all_frames is not None and s.depth_abs_rel_all_frames < SINUS_ABS_REL
-    assert all(f.reason for f in frames if f.c2w is None)
+    assert all(f.reason for f in view.frames() if f.c2w is None)
