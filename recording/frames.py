@@ -42,7 +42,7 @@ CORNERS, CORNER_QUALITY = 1000, 0.001
 
 
 class FramePose(BaseModel):
-    """recording/frames.json: one line per frame of the input."""
+    """recording/frames.json: one line per frame ingest judged (its stride, start and end)."""
 
     source_index: int
     window: str | None  # the window it was posed in (or last tried)
@@ -56,7 +56,7 @@ class FramePose(BaseModel):
 
 
 class FramesFile(BaseModel):
-    """recording/frames.json: every frame of the input."""
+    """recording/frames.json: every frame ingest judged."""
 
     frames: list[FramePose]
 
