@@ -1,5 +1,6 @@
-"""Whose reconstruction do the frames support, ours or a reference SfM's (a case folder's gt/:
-poses and the depth of its points)? Two checks on one window of a run, keyframe by keyframe:
+"""Whose reconstruction do the frames support, ours or a reference SfM's (the input's ground
+truth when it is another method's: poses and the depth of its points)? Two checks on one window
+of a run, keyframe by keyframe:
 
 - our SfM points' depth against the reference's points within 1.5 px (AbsRel, median-scaled
   per frame): how far the two structures disagree before any field;
@@ -7,21 +8,24 @@ poses and the depth of its points)? Two checks on one window of a run, keyframe 
   (a) the reference's depth and poses, (b) our depth map at the same pixels and our poses, (c)
   no warp; median NCC of 9x9 grey patches. The better supported geometry correlates higher.
 
-Run: `.venv/bin/python scripts/reference_check.py W/CASE/windows/w000 CASE_FOLDER [--gap 8]`.
-A diagnosis, not a test.
+Run: `.venv/bin/python scripts/reference_check.py W/CASE/windows/w000 [--gap 8]`. The reference
+depth is taken at the working size as the depth scores take it (nearest pixel). A diagnosis,
+not a test.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import cv2
 import numpy as np
-import pycolmap
 from scipy.ndimage import map_coordinates
 from scipy.spatial import cKDTree
+
+from endopipe.cli import build_pipeline
+from endopipe.recording.cameras import truth_poses
+from endopipe.stages.camera import backproject, project
 
 STRETCHES = [(0, 120), (120, 250), (250, 360), (360, 10**9)]
 HALF = 4  # patch half-size, px
@@ -51,90 +55,75 @@ def by_stretch(rows: list[tuple], label: str) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("window", type=Path)
-    parser.add_argument("case", type=Path, help="the case folder with gt/poses.json, gt/depth/")
+    parser.add_argument("window", type=Path, help="a case (a recording's window) run to depth")
     parser.add_argument("--gap", type=int, default=8)
     args = parser.parse_args()
-    ingest = json.loads((args.window / "01_ingest" / "frames.json").read_text())
-    w, h, k = ingest["width"], ingest["height"], ingest["intrinsics"]
-    fx, fy, cx, cy = k["fx"], k["fy"], k["cx"], k["cy"]
-    source = {f["index"]: f["source_index"] for f in ingest["frames"]}
-    index = {s: i for i, s in source.items()}
-    theirs = json.loads((args.case / "gt" / "poses.json").read_text())["poses"]
-    theirs = [np.array(p) for p in theirs]
-    rec = pycolmap.Reconstruction(str(args.window / "02_poses" / "sparse"))
-    ours: dict[int, np.ndarray] = {}
+    pipe = build_pipeline()
+    ingest = pipe.view(args.window, "ingest")
+    poses = pipe.view(args.window, "poses")
+    depth = pipe.view(args.window, "depth")
+    camera = poses.intrinsics
+    gt, theirs = ingest.ground_truth(), truth_poses(ingest)
+    if gt is None or theirs is None:
+        raise SystemExit(f"{args.window}: no reference poses and depth to check against")
+    size = (camera.width, camera.height)
+    source = {i: ingest.frame(i).source_index for i in poses.registered}
+
+    def reference(i: int) -> np.ndarray:
+        ref = gt.depth(source[i])
+        ref = np.zeros(size[::-1], np.float32) if ref is None else ref.astype(np.float32)
+        return cv2.resize(ref, size, interpolation=cv2.INTER_NEAREST)
+
     structure = []
-    for image in rec.images.values():
-        if not image.has_pose:
+    obs = poses.observations(ingest.index_by_name())
+    for i in poses.registered if obs is not None else []:
+        mine = obs.frame == i
+        _, z = project(camera, obs.xyz[mine], poses.c2w[i])
+        ref = reference(i)
+        row, col = np.nonzero(ref)
+        if not len(row):
             continue
-        s = source[int(Path(image.name).stem)]
-        w2c = np.eye(4)
-        w2c[:3] = image.cam_from_world().matrix()
-        ours[s] = np.linalg.inv(w2c)
-        seen = [p for p in image.points2D if p.has_point3D()]
-        ref = np.load(args.case / "gt" / "depth" / f"{s:06d}.npy")
-        v, u = np.nonzero(ref)
-        if not seen or not len(v):
-            continue
-        xy = np.array([p.xy for p in seen]) - 0.5  # COLMAP's pixel centres sit at +0.5
-        xyz = np.array([rec.points3D[p.point3D_id].xyz for p in seen])
-        z = (xyz @ w2c[:3, :3].T + w2c[:3, 3])[:, 2]
-        gx = (u + 0.5) * w / ref.shape[1] - 0.5
-        gy = (v + 0.5) * h / ref.shape[0] - 0.5
-        dist, j = cKDTree(np.c_[gx, gy]).query(xy)
-        near = dist < 1.5
-        if near.sum() >= 5:
-            p, g = z[near], ref[v[j[near]], u[j[near]]]
+        dist, nearest = cKDTree(np.c_[col, row]).query(obs.uv[mine])
+        seen = dist < 1.5  # a reference point within 1.5 px of ours
+        if seen.sum() >= 5:
+            p, g = z[seen], ref[row[nearest[seen]], col[nearest[seen]]]
             scale = np.median(g / p)
-            structure.append((s, float(np.mean(np.abs(scale * p - g) / g))))
+            structure.append((source[i], float(np.mean(np.abs(scale * p - g) / g))))
     by_stretch(structure, "our SfM points against the reference's, AbsRel")
 
-    def grey(s: int) -> np.ndarray:
-        image = cv2.imread(str(args.case / "frames" / f"{s:06d}.jpg"), cv2.IMREAD_GRAYSCALE)
-        return cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA).astype(np.float32)
-
-    def warp(x, y, z, ci, cj):
-        cam = np.c_[(x - cx) / fx * z, (y - cy) / fy * z, z]
-        world = cam @ ci[:3, :3].T + ci[:3, 3]
-        wj = np.linalg.inv(cj)
-        other = world @ wj[:3, :3].T + wj[:3, 3]
-        return fx * other[:, 0] / other[:, 2] + cx, fy * other[:, 1] / other[:, 2] + cy, other[:, 2]
+    def grey(i: int) -> np.ndarray:
+        return cv2.cvtColor(ingest.image(i), cv2.COLOR_RGB2GRAY).astype(np.float32)
 
     rows = []
-    keys = sorted(ours)
-    for s in keys:
-        later = [t for t in keys if t >= s + args.gap]
-        if not later:
-            break
-        t = later[0]
-        ref = np.load(args.case / "gt" / "depth" / f"{s:06d}.npy")
-        v, u = np.nonzero(ref)
-        x = (u + 0.5) * w / ref.shape[1] - 0.5
-        y = (v + 0.5) * h / ref.shape[0] - 0.5
-        z_ref = ref[v, u]
-        depth = np.load(args.window / "05_depth" / "depth" / f"{index[s]:06d}.npy")
-        z_ours = map_coordinates(depth.astype(np.float32), [y, x], order=0)
-        keep = (x > HALF) & (x < w - HALF - 1) & (y > HALF) & (y < h - HALF - 1) & (z_ours > 0)
-        x, y, z_ref, z_ours = x[keep], y[keep], z_ref[keep], z_ours[keep]
-        a, b = grey(s), grey(t)
-        here = patches(a, x, y)
+    keys = poses.registered
+    for i in keys:
+        later = [j for j in keys if source[j] >= source[i] + args.gap]
+        if not later or not depth.has_depth(i):
+            continue
+        j = later[0]
+        ref, ours = reference(i), depth.depth(i).astype(np.float32)
+        y, x = np.nonzero((ref > 0) & (ours > 0))
+        keep = (x > HALF) & (x < size[0] - HALF - 1) & (y > HALF) & (y < size[1] - HALF - 1)
+        x, y = x[keep], y[keep]
+        here = patches(grey(i), x.astype(float), y.astype(float))
+        there = grey(j)
         scores = {}
         for name, z, ci, cj in (
-            ("reference", z_ref, theirs[s], theirs[t]),
-            ("ours", z_ours, ours[s], ours[t]),
+            ("reference", ref, theirs[source[i]], theirs[source[j]]),
+            ("ours", ours, poses.c2w[i], poses.c2w[j]),
         ):
-            xj, yj, zj = warp(x, y, z, ci, cj)
-            inside = (
-                (zj > 0) & (xj > HALF) & (xj < w - HALF - 1) & (yj > HALF) & (yj < h - HALF - 1)
+            uv, zj = project(camera, backproject(camera, z, ci)[y, x], cj)
+            inside = (zj > 0) & (uv[:, 0] > HALF) & (uv[:, 0] < size[0] - HALF - 1)
+            inside &= (uv[:, 1] > HALF) & (uv[:, 1] < size[1] - HALF - 1)
+            score = ncc(
+                here, patches(there, np.where(inside, uv[:, 0], x), np.where(inside, uv[:, 1], y))
             )
-            score = ncc(here, patches(b, np.where(inside, xj, x), np.where(inside, yj, y)))
             score[~inside] = np.nan
             scores[name] = score
-        scores["no warp"] = ncc(here, patches(b, x, y))
+        scores["no warp"] = ncc(here, patches(there, x.astype(float), y.astype(float)))
         both = np.isfinite(scores["reference"]) & np.isfinite(scores["ours"])
         if both.sum() >= 10:
-            rows.append((s, *[float(np.median(scores[n][both])) for n in scores]))
+            rows.append((source[i], *[float(np.median(scores[n][both])) for n in scores]))
     by_stretch(rows, f"patch NCC {args.gap} frames ahead: reference / ours / no warp")
 
 
