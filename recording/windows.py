@@ -52,15 +52,12 @@ def plan_windows(
     them with `options.overlap` shared between neighbours, all of one length and evenly spread
     (no short tail window, no window that repeats most of its neighbour). `cuts`: keyframes
     that start a new stretch (and why); each stretch is cut on its own."""
+    from endopipe.stages.poses.links import split_at
+
     cuts = cuts or {}
-    stretches: list[list[int]] = []
-    for i in keyframes:
-        if not stretches or i in cuts:
-            stretches.append([])
-        stretches[-1].append(i)
     windows: list[list[int]] = []
     breaks: dict[int, str] = {}
-    for stretch in stretches:
+    for stretch in split_at(keyframes, cuts):
         if windows:
             breaks[len(windows)] = cuts[stretch[0]]
         windows += _cut(stretch, options.window, options.overlap)

@@ -21,6 +21,8 @@ out, and a recording poses the stretches on either side as separate segments
 
 from __future__ import annotations
 
+from collections.abc import Collection
+
 import numpy as np
 from pydantic import BaseModel, Field
 
@@ -83,12 +85,16 @@ def weak_links(
 
 def stretches(index: np.ndarray, links: list[WeakLink]) -> list[list[int]]:
     """The registered frames cut at the weak links: each stretch holds together by many points."""
-    cuts = {link.before for link in links}
+    return split_at([int(i) for i in index], {link.before for link in links})
+
+
+def split_at(frames: list[int], starts: Collection[int]) -> list[list[int]]:
+    """Frames in order, cut before each of `starts`."""
     out: list[list[int]] = []
-    for i in index.tolist():
-        if not out or i in cuts:
+    for i in frames:
+        if not out or i in starts:
             out.append([])
-        out[-1].append(int(i))
+        out[-1].append(i)
     return out
 
 
