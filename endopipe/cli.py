@@ -309,9 +309,32 @@ def synth(
         float, typer.Option(help="Fraction of frames washed out by the light.")
     ] = 0.0,
     fps: Annotated[int, typer.Option(help="Frame rate of video.mp4.")] = 15,
+    deform: Annotated[
+        str,
+        typer.Option(
+            help="none | breathe (the wall moves out and back) | pull (a patch pulled by a "
+            "tool in view; masks/ marks the tool)."
+        ),
+    ] = "none",
+    deform_amplitude: Annotated[
+        float | None,
+        typer.Option(help="breathe: relative radius change (0.04); pull: mm (4)."),
+    ] = None,
+    breathe_period: Annotated[float, typer.Option(help="Breathing period, s.")] = 3.0,
+    still_camera: Annotated[
+        bool, typer.Option("--still-camera", help="Every frame at the path's first pose.")
+    ] = False,
+    layout: Annotated[
+        str,
+        typer.Option(
+            help="endopipe | endonerf (EndoNeRF's images/ masks/ depth/ poses_bounds.npy "
+            "instead of the frames; gt/ kept) | both (EndoNeRF's in OUT/endonerf/)."
+        ),
+    ] = "endopipe",
 ) -> None:
     """Write a synthetic lumen case with exact ground truth (depth, poses, mesh, speculars);
-    a long recording with pauses and spoiled frames (listed in gt/synth.json) on request."""
+    a long recording with pauses and spoiled frames (listed in gt/synth.json) on request; a
+    breathing or pulled wall, seen from a still camera if asked."""
     from endopipe.commands.synth import synth_case
 
     synth_case(
@@ -332,6 +355,13 @@ def synth(
             "washed_out": washed_out,
             "fps": fps,
         },
+        motion={
+            "deform": deform,
+            "deform_amplitude": deform_amplitude,
+            "breathe_period_s": breathe_period,
+            "still_camera": still_camera,
+        },
+        layout=layout,
     )
 
 

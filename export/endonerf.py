@@ -74,6 +74,45 @@ def c2w_from_llff(m: np.ndarray, axes: str = "llff") -> np.ndarray:
     return c2w
 
 
+def poses_bounds(
+    c2ws: list[np.ndarray] | np.ndarray,
+    hwf: tuple[float, float, float],
+    bounds: list[tuple[float, float]],
+    axes: str = "llff",
+) -> np.ndarray:
+    """poses_bounds.npy's (N, 17) rows: each OpenCV c2w as LLFF's 3x5, flattened, then near
+    and far."""
+    rows = [
+        np.concatenate([llff_matrix(c2w, hwf, axes).ravel(), [near, far]])
+        for c2w, (near, far) in zip(c2ws, bounds, strict=True)
+    ]
+    return np.asarray(rows, dtype=np.float64)
+
+
+def frame_file(out: Path, kind: str, n: int) -> Path:
+    """EndoNeRF's name of the n-th frame's file of `kind` (images, masks or depth)."""
+    suffix = {"images": "color", "masks": "mask", "depth": "depth"}[kind]
+    return out / kind / f"frame-{n:06d}.{suffix}.png"
+
+
+def write_mask(out: Path, n: int, excluded: np.ndarray) -> None:
+    """The n-th frame's mask in EndoNeRF's meaning: 255 where `excluded` (a tool, a
+    highlight), 0 where the pixel is used."""
+    cv2.imwrite(str(frame_file(out, "masks", n)), np.where(excluded, 255, 0).astype(np.uint8))
+
+
+def write_depth_png(out: Path, n: int, depth: np.ndarray, scale: float) -> None:
+    """The n-th frame's 16-bit depth PNG: depth x `scale`, 0 = invalid (non-finite or <= 0)."""
+    d = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0)
+    png = np.clip(np.round(d * scale), 0, 65535).astype(np.uint16)
+    cv2.imwrite(str(frame_file(out, "depth", n)), png)
+
+
+def percentile_bounds(z: np.ndarray, enough: int = 1) -> tuple[float, float]:
+    """LLFF's near / far from depths: their 0.1 and 99.9 percentiles (NaN: too few)."""
+    return _percentile_bounds(z, enough)
+
+
 def read_endonerf(folder: Path, axes: str = "llff") -> tuple[np.ndarray, list[np.ndarray]]:
     """poses_bounds.npy back to (N, 2) bounds and OpenCV c2w matrices."""
     arr = np.load(Path(folder) / "poses_bounds.npy")
@@ -183,11 +222,7 @@ def write_endonerf(case: CaseExport, out: Path, *, axes: str = "llff") -> Export
     bounds, source = depth_bounds(case)
     notes.append(f"near/far bounds from {source}")
     hwf = (float(k.height), float(k.width), float(k.fx))
-    rows = [
-        np.concatenate([llff_matrix(f.c2w, hwf, axes).ravel(), [near, far]])
-        for f, (near, far) in zip(case.frames, bounds, strict=True)
-    ]
-    np.save(out / "poses_bounds.npy", np.asarray(rows, dtype=np.float64))
+    np.save(out / "poses_bounds.npy", poses_bounds([f.c2w for f in case.frames], hwf, bounds, axes))
     write_images_and_masks(case, out)
     files = ["poses_bounds.npy", "images", "masks"]
     scale = None
@@ -208,13 +243,11 @@ def write_images_and_masks(case: CaseExport, out: Path) -> None:
     (out / "images").mkdir()
     (out / "masks").mkdir()
     for n, f in enumerate(case.frames):
-        stem = f"frame-{n:06d}"
-        shutil.copy2(f.image, out / "images" / f"{stem}.color.png")  # type: ignore[arg-type]
+        shutil.copy2(f.image, frame_file(out, "images", n))  # type: ignore[arg-type]
         usable = cv2.imread(str(f.mask), cv2.IMREAD_GRAYSCALE) if f.mask is not None else None
         if usable is None:
             usable = np.full((k.height, k.width), 255, np.uint8)
-        excluded = np.where(usable > 127, 0, 255).astype(np.uint8)
-        cv2.imwrite(str(out / "masks" / f"{stem}.mask.png"), excluded)
+        write_mask(out, n, usable <= 127)
 
 
 def write_depth_pngs(case: CaseExport, out: Path) -> tuple[float, list[str]]:
@@ -230,9 +263,7 @@ def write_depth_pngs(case: CaseExport, out: Path) -> tuple[float, list[str]]:
             d = np.zeros((k.height, k.width), np.float32)
         if d.shape != (k.height, k.width):
             d = cv2.resize(d, (k.width, k.height), interpolation=cv2.INTER_NEAREST)
-        d = np.where(np.isfinite(d) & (d > 0), d, 0.0)
-        png = np.clip(np.round(d * scale), 0, 65535).astype(np.uint16)
-        cv2.imwrite(str(out / "depth" / f"frame-{n:06d}.depth.png"), png)
+        write_depth_png(out, n, d, scale)
     notes = [f"depth PNG = z-depth x {scale:g} ({case.units}); 0 = invalid"]
     if len(depths) < len(case.frames):
         notes.append(f"depth for {len(depths)} of {len(case.frames)} frames (rest: 0)")

@@ -5,5 +5,6 @@
 """
 
 from endopipe.synth.generate import SynthConfig, SynthSummary, generate_case
+from endopipe.synth.writer import Layout
 
-__all__ = ["SynthConfig", "SynthSummary", "generate_case"]
+__all__ = ["Layout", "SynthConfig", "SynthSummary", "generate_case"]

@@ -5,7 +5,9 @@ A seeded implicit anatomy (colon or cavity) is ray-cast exactly from a seeded ca
 light at the camera; the case gets the video, lossless frames, intrinsics, z-depth, poses, mesh,
 specular masks and centre line. Units are millimetres throughout. The camera may have a distorted
 lens and vignetting (`lens.py`): each pixel's ray is its undistorted direction, so the depth
-stays exact on the frames' own pixel grid.
+stays exact on the frames' own pixel grid. The anatomy may move (`deform.py`: breathing, or a
+patch pulled by a tool, `tool.py`): frame i is cast against the wall at its time i / fps, and
+the camera may stand still for the whole clip.
 """
 
 from __future__ import annotations
@@ -20,16 +22,25 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from endopipe.stages.camera import Camera
+from endopipe.synth.deform import Breathe, DeformedScene, Displacement
 from endopipe.synth.events import Events, plan_events, spoil
 from endopipe.synth.lens import LENSES, LensName, lens_camera, vignetting_gain
-from endopipe.synth.raycast import FrameGeometry, MeshGuide, StepBound, trace, trace_frame
+from endopipe.synth.raycast import (
+    FrameGeometry,
+    MeshGuide,
+    StepBound,
+    camera_rays,
+    trace,
+    trace_frame,
+)
 from endopipe.synth.render import Lighting, calibrate_exposure, shade
 from endopipe.synth.scene import CavityScene, ColonScene, Scene
 from endopipe.synth.texture import MucosaTexture
+from endopipe.synth.tool import Tool, ToolHit, plan_pull, shade_tool
 from endopipe.synth.trajectory import cavity_poses, colon_poses
-from endopipe.synth.writer import CaseWriter
+from endopipe.synth.writer import CaseWriter, Layout
 
-__all__ = ["SynthConfig", "SynthSummary", "generate_case"]
+__all__ = ["Layout", "SynthConfig", "SynthSummary", "generate_case"]
 
 GUIDE_RAYS = 800_000  # above this many pixels in total, rays are guided by the wall's mesh
 
@@ -90,6 +101,21 @@ class SynthConfig(BaseModel):
         lt=1.0,
         description="S of the linear gain 1 - S (r / r_corner)^2: corners get 1 - S of the light.",
     )
+    deform: Literal["none", "breathe", "pull"] = Field(
+        "none",
+        description="none: a rigid anatomy; breathe: the wall moves out and back periodically; "
+        "pull: a patch of wall pulled a few mm by a grasping tool that is in view.",
+    )
+    deform_amplitude: float | None = Field(
+        None,
+        gt=0.0,
+        description="breathe: the radius's largest relative change (default 0.04); pull: the "
+        "pulled spot's largest displacement, mm (default 4).",
+    )
+    breathe_period_s: float = Field(3.0, gt=0.1, description="Period of the breathing, s.")
+    still_camera: bool = Field(
+        False, description="Every frame at the first pose of the path (the scene may move)."
+    )
 
     @field_validator("width", "height")
     @classmethod
@@ -107,11 +133,24 @@ class SynthSummary(BaseModel):
     path_length_mm: float = Field(description="Length of the camera path (sum of frame steps).")
     mean_radius_mm: float = Field(description="Mean lumen radius along gt/centerline.json.")
     seconds: float = Field(description="Wall time of the generation.")
+    deform: str = Field("none", description="How the anatomy moves (none, breathe, pull).")
+    deform_amplitude: float | None = Field(
+        None, description="breathe: relative radius change; pull: mm; None when rigid."
+    )
+    tool: bool = Field(False, description="A tool is in view (masks/ written).")
 
 
 #: Fields added with lenses and recordings: left out of gt/synth.json at their defaults, so cases
 #: made without them keep their bytes.
 OPTICS_DEFAULTS = {"lens": "pinhole", "fov_diag_deg": None, "vignetting": 0.0}
+DEFORM_DEFAULTS = {
+    "deform": "none",
+    "deform_amplitude": None,
+    "breathe_period_s": 3.0,
+    "still_camera": False,
+}
+#: The deformation's default amplitude, per kind (breathe: relative; pull: mm).
+AMPLITUDE = {"breathe": 0.04, "pull": 4.0}
 RECORDING_DEFAULTS = {
     "step_mm": 1.0,
     "pauses": 0,
@@ -129,7 +168,7 @@ def intrinsics_for(cfg: SynthConfig) -> Camera:
 
 def describe(cfg: SynthConfig, intr: Camera, events: Events) -> dict:
     """The config and, when used, the lens, vignetting and events, for gt/synth.json."""
-    defaults = {**OPTICS_DEFAULTS, **RECORDING_DEFAULTS}
+    defaults = {**OPTICS_DEFAULTS, **RECORDING_DEFAULTS, **DEFORM_DEFAULTS}
     unset = {k for k, v in defaults.items() if getattr(cfg, k) == v}
     meta: dict = {"config": cfg.model_dump(exclude=unset)}
     if events.paused or events.blurred or events.washed_out:
@@ -153,7 +192,7 @@ def describe(cfg: SynthConfig, intr: Camera, events: Events) -> dict:
 
 def _streams(seed: int) -> dict[str, np.random.Generator]:
     """Independent generators, so changing one part (e.g. texture) leaves the others alone."""
-    names = ("scene", "path", "texture", "bound", "events")  # a new name goes last
+    names = ("scene", "path", "texture", "bound", "events", "deform")  # a new name goes last
     seqs = np.random.SeedSequence(seed).spawn(len(names))
     return {n: np.random.default_rng(s) for n, s in zip(names, seqs, strict=True)}
 
@@ -200,9 +239,51 @@ class Setup:
     light: Lighting
     events: Events
     gain: np.ndarray | None = None  # (H, W) vignetting on linear light
+    disp: Displacement | None = None  # the anatomy's motion; None: rigid
+    tool: Tool | None = None  # in view when the wall is pulled
+    fps: float = 15.0
+
+    def time(self, i: int) -> float:
+        """Frame i's time, s."""
+        return i / self.fps
+
+    def scene_at(self, i: int) -> Scene:
+        """The anatomy at frame i's time (the rest anatomy when rigid)."""
+        if self.disp is None:
+            return self.scene
+        return DeformedScene(self.scene, self.disp, self.time(i))
 
     def trace(self, i: int, intr: Camera | None = None) -> FrameGeometry:
-        return trace_frame(self.scene, self.bound, self.guide, intr or self.intr, self.poses[i])
+        """The wall at frame i's time, seen from its pose (the tool not included)."""
+        intr = intr or self.intr
+        return trace_frame(self.scene_at(i), self.bound, self.guide, intr, self.poses[i])
+
+    def tool_hit(self, i: int) -> ToolHit | None:
+        """Where the tool lies along each of frame i's rays (None: no tool)."""
+        if self.tool is None:
+            return None
+        origin, dirs, _ = camera_rays(self.intr, self.poses[i])
+        return self.tool.cast(origin, dirs, self.time(i))
+
+
+def plan_deform(
+    cfg: SynthConfig, setup: Setup, rng: np.random.Generator
+) -> tuple[Displacement | None, Tool | None]:
+    """The motion asked for, and the tool that makes it (pull)."""
+    if cfg.deform == "none":
+        return None, None
+    amplitude = cfg.deform_amplitude or AMPLITUDE[cfg.deform]
+    if cfg.deform == "breathe":
+        return Breathe(setup.scene, rng, amplitude, cfg.breathe_period_s), None
+    clip_s = (cfg.frames - 1) / cfg.fps
+    return plan_pull(setup.scene, setup.bound, setup.intr, setup.poses[0], amplitude, clip_s)
+
+
+def check_clearance(setup: Setup) -> None:
+    """The camera stays 2 mm inside the lumen at every frame's time."""
+    for i, pose in enumerate(setup.poses):
+        if setup.scene_at(i).f_points(pose[None, :3, 3])[0] > -2.0:
+            raise RuntimeError(f"synthetic wall comes too close to the camera at frame {i}")
 
 
 def prepare(cfg: SynthConfig) -> Setup:
@@ -212,13 +293,20 @@ def prepare(cfg: SynthConfig) -> Setup:
         cfg.frames, cfg.pauses, cfg.pause_frames, cfg.blurred, cfg.washed_out, rng["events"]
     )
     scene, poses = build_scene(cfg, rng, events)
+    if cfg.still_camera:
+        poses = np.repeat(poses[:1], cfg.frames, axis=0)
     bound = StepBound(scene, rng["bound"])
-    big = cfg.frames * cfg.width * cfg.height > GUIDE_RAYS
-    guide = MeshGuide(scene, *scene.mesh()) if big else None
     texture = MucosaTexture(rng["texture"], cfg.texture_contrast)
     intr = intrinsics_for(cfg)
     gain = vignetting_gain(intr, cfg.vignetting)
-    setup = Setup(scene, poses, bound, guide, texture, intr, Lighting(exposure=1.0), events, gain)
+    setup = Setup(scene, poses, bound, None, texture, intr, Lighting(exposure=1.0), events, gain)
+    setup.fps = float(cfg.fps)
+    setup.disp, setup.tool = plan_deform(cfg, setup, rng["deform"])
+    if setup.disp is not None:
+        check_clearance(setup)
+    if cfg.frames * cfg.width * cfg.height > GUIDE_RAYS:
+        slack = 0.0 if setup.disp is None else setup.disp.reach
+        setup.guide = MeshGuide(scene, *scene.mesh(), slack=slack)
     # Exposure from quarter-resolution previews of three frames, then fixed for the sequence.
     small = intr.scaled(max(cfg.width // 4, 8), max(cfg.height // 4, 8))
     probes = [setup.trace(i, small) for i in sorted({0, cfg.frames // 2, cfg.frames - 1})]
@@ -239,8 +327,12 @@ def _render_frames(
         geom = setup.trace(i)
         noise_rng = np.random.default_rng([cfg.seed, 7919, i])  # per frame: order-independent
         rgb, spec = shade(geom, setup.texture, setup.light, cfg.noise_std, noise_rng, setup.gain)
+        depth, tool = geom.depth, None
+        hit = setup.tool_hit(i)
+        if hit is not None:
+            rgb, depth, spec, tool = put_tool(setup, i, geom, hit, (rgb, spec), noise_rng, cfg)
         rgb = spoil(rgb, setup.events.kind_of(i), noise_rng)
-        writer.add_frame(rgb, geom.depth, spec)
+        writer.add_frame(rgb, depth, spec, tool)
         lo.append(geom.points.min(0))
         hi.append(geom.points.max(0))
         spec_frac.append(float(spec.mean()))
@@ -249,18 +341,51 @@ def _render_frames(
     return np.stack([np.min(lo, 0), np.max(hi, 0)]), float(np.mean(spec_frac))
 
 
+def put_tool(
+    setup: Setup,
+    i: int,
+    geom: FrameGeometry,
+    hit: ToolHit,
+    image: tuple[np.ndarray, np.ndarray],
+    noise_rng: np.random.Generator,
+    cfg: SynthConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The tool over the tissue where it is nearer along the ray: image, z-depth, specular
+    mask and the tool mask (True = tool) of frame i."""
+    _, dirs, z_per_t = camera_rays(setup.intr, setup.poses[i])
+    tissue_t = np.full(len(dirs), np.inf)
+    tissue_t[geom.valid.ravel()] = geom.dist
+    front = hit.t < tissue_t
+    mine = ToolHit(hit.t[front], hit.normals[front])
+    gain = None if setup.gain is None else setup.gain.ravel()[front]
+    colours, shiny = shade_tool(mine, dirs[front], setup.light, cfg.noise_std, noise_rng, gain)
+    rgb, spec = (a.copy() for a in image)
+    shape = geom.depth.shape
+    rgb.reshape(-1, 3)[front] = colours
+    spec.reshape(-1)[front] = shiny
+    depth = geom.depth.copy()
+    depth.reshape(-1)[front] = hit.t[front] * z_per_t[front]
+    return rgb, depth, spec, front.reshape(shape)
+
+
 def generate_case(
-    out: Path, cfg: SynthConfig, progress: Callable[[int, int], None] | None = None
+    out: Path,
+    cfg: SynthConfig,
+    progress: Callable[[int, int], None] | None = None,
+    layout: Layout | None = None,
 ) -> SynthSummary:
     """Render a synthetic case into the folder `out`: replaced if it holds a previous synth
     case, a FileExistsError if it is some other non-empty folder. `progress(done, total)` is
-    called after each frame."""
+    called after each frame. `layout` writes another tool's layout too (in its subfolder) or
+    instead of endopipe's frames (subfolder "")."""
     start = time.perf_counter()
-    writer = CaseWriter(out, intrinsics_for(cfg), cfg.fps)  # refuses a foreign folder first
+    # refuses a foreign folder first
+    writer = CaseWriter(out, intrinsics_for(cfg), cfg.fps, layout)
     try:
         setup = prepare(cfg)
         extent, spec_frac = _render_frames(setup, cfg, writer, progress)
-        points, radius = centerline_radii(setup.scene, setup.bound, extent)
+        first = setup.scene_at(0)  # the mesh and centre line: the wall at frame 0's time
+        points, radius = centerline_radii(first, setup.bound, extent)
         steps = np.linalg.norm(np.diff(setup.poses[:, :3, 3], axis=0), axis=1)
         meta = {
             "generator": "endopipe synth",
@@ -268,8 +393,9 @@ def generate_case(
             "exposure": setup.light.exposure,
             "specular_fraction": spec_frac,
             "camera_start": setup.poses[0][:3, 3].tolist(),
+            **motion(setup),
         }
-        writer.finish(setup.poses, setup.scene.mesh(extent), (points, radius), meta)
+        writer.finish(setup.poses, first.mesh(extent), (points, radius), meta)
     except BaseException:
         writer.abort()
         raise
@@ -279,4 +405,23 @@ def generate_case(
         path_length_mm=float(steps.sum()),
         mean_radius_mm=float(np.mean(radius)),
         seconds=time.perf_counter() - start,
+        deform=cfg.deform,
+        deform_amplitude=None if setup.disp is None else setup.disp.describe()["amplitude"],
+        tool=setup.tool is not None,
     )
+
+
+def motion(setup: Setup) -> dict:
+    """gt/synth.json's account of a moving anatomy and its tool (nothing when rigid)."""
+    if setup.disp is None:
+        return {}
+    meta: dict = {
+        "deform": {
+            **setup.disp.describe(),
+            "frame_time": "frame i is the wall at i / fps s; gt/depth is exact at that time",
+            "mesh": "gt/mesh.ply and gt/centerline.json are the wall at frame 0's time",
+        }
+    }
+    if setup.tool is not None:
+        meta["tool"] = setup.tool.describe()
+    return meta

@@ -74,20 +74,30 @@ class StepBound:
         self.env = np.maximum(np.maximum.accumulate(per_bin[::-1])[::-1] * 1.25, 1.0)
         self._inv_env = (1.0 / self.env).astype(F32)
 
-    def step(self, radial: np.ndarray, val: np.ndarray, clear: np.ndarray | None) -> np.ndarray:
+    def step(
+        self,
+        radial: np.ndarray,
+        val: np.ndarray,
+        clear: np.ndarray | None,
+        stretch: float = 1.0,
+    ) -> np.ndarray:
         """Safe step length from points with these radial coordinates and f values (< 0).
 
         For a ball radius cap c |f| (c = 1, 1/2, 1/4) the gradient bound of the radial range
         that ball can reach gives the step min(c |f|, |f| / env): take the best of them, and
-        the scene's coarse `clear` bound when that is larger.
+        the scene's coarse `clear` bound when that is larger. A deformed scene (`stretch` =
+        1 + L of its displacement) reaches rest points up to `stretch` times farther, where f
+        may change `stretch` times faster: both bounds shrink by it.
         """
         dist = -val
         best = np.zeros_like(dist)
         top = len(self._inv_env) - 1
+        lr = self.radial_lipschitz * stretch
+        inv_env = self._inv_env if stretch == 1.0 else self._inv_env * F32(1.0 / stretch)
         for c in (1.0, 0.5, 0.25):
-            r_in = radial - (self.radial_lipschitz * c) * dist
+            r_in = radial - (lr * c) * dist
             idx = np.minimum(np.maximum((r_in * (1.0 / self.BIN)).astype(np.int64), 0), top)
-            best = np.maximum(best, np.minimum(dist * self._inv_env[idx], c * dist))
+            best = np.maximum(best, np.minimum(dist * inv_env[idx], c * dist))
         if clear is not None:
             best = np.maximum(best, clear)
         return np.maximum(best, MIN_STEP)
@@ -177,7 +187,7 @@ def _trace_chunk(
         tc = rays.t + omega * r
         pts = rays.at(tc)
         val, radial = scene.f_radial(*pts)
-        rc = bound.step(radial, val, scene.clear_step(pts[2], radial))
+        rc = bound.step(radial, val, scene.clear_ball(*pts, radial), scene.stretch)
         out = tc > t_max
         escaped = scene.escaped(*pts)
         if escaped is not None:
@@ -347,11 +357,16 @@ class MeshGuide:
     `error` bounds how far the mesh strays from the true wall (sampled at triangle centres and
     edge midpoints); the push is 3x that, so the pushed mesh separates the lumen from a band that
     contains the whole true wall: a ray cannot meet the wall before it meets the pushed mesh.
+    `slack` (mm) pushes it farther, for a wall that moves up to that far from this mesh (a
+    deforming scene); such rays then only start the sphere tracer there (no narrow bracket).
     """
 
-    def __init__(self, scene: Scene, vertices: np.ndarray, faces: np.ndarray) -> None:
+    def __init__(
+        self, scene: Scene, vertices: np.ndarray, faces: np.ndarray, slack: float = 0.0
+    ) -> None:
         self.error = mesh_error(scene, vertices, faces)
-        self.offset = max(3.0 * self.error, 0.01)
+        self.slack = float(slack)
+        self.offset = max(3.0 * self.error, 0.01) + self.slack
         pushed = vertices + self.offset * vertex_normals(vertices, faces)
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(
@@ -405,6 +420,7 @@ def trace_frame(
         # No hit on the pushed mesh: the ray cannot reach the wall inside the modelled part.
         todo[~np.isfinite(a)] = False
         start = np.where(np.isfinite(a), a, 0.0)  # no wall before a: the tracer may start there
+    if guide is not None and guide.slack == 0.0:
         # The wall lies between offset - error and offset + error behind the pushed mesh (for a
         # locally flat wall); the sign test below rejects the rays for which that is not so.
         inv_cos = 1.0 / np.maximum(cos, 0.05)

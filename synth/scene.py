@@ -38,6 +38,9 @@ class Scene(ABC):
     name: str
     # Lipschitz constant of `radial`, used to bound how far a step may move the radial coordinate.
     radial_lipschitz: float = 1.0
+    # How much more than the rest anatomy f may change per mm (a deformed scene, `deform.py`):
+    # the tracer divides its safe steps by it.
+    stretch: float = 1.0
 
     @abstractmethod
     def f_radial(
@@ -67,6 +70,17 @@ class Scene(ABC):
         layout (e.g. the narrowest the lumen gets nearby); None when the scene has no such
         bound. Complements the gradient bound, which is weak far from the wall."""
         return None
+
+    def clear_ball(
+        self, x: np.ndarray, y: np.ndarray, z: np.ndarray, radial: np.ndarray
+    ) -> np.ndarray | None:
+        """`clear_step` at points: a deformed scene looks it up at the rest point."""
+        return self.clear_step(z, radial)
+
+    @abstractmethod
+    def axis_offset(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple:
+        """(ox, oy, oz): the offset of points from the scene's axis or centre, 1-Lipschitz up
+        to `radial_lipschitz`; the direction the wall breathes along."""
 
     @abstractmethod
     def sample_interior(self, rng: np.random.Generator, n: int) -> np.ndarray:
@@ -247,6 +261,11 @@ class ColonScene(Scene):
     def escaped(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
         return (z > self.z_far) | (z < self.z_min)
 
+    def axis_offset(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple:
+        """From the centre curve, in the plane z = const."""
+        cx, cy = self._centre_xy(z)
+        return x - cx, y - cy, z * 0
+
     def clear_step(self, z: np.ndarray, radial: np.ndarray) -> np.ndarray:
         """Largest CLEAR_STEPS radius whose ball (radial grows by at most Lr times the radius)
         stays inside the narrowest lumen radius over the z-window it spans."""
@@ -370,6 +389,10 @@ class CavityScene(Scene):
     def clear_step(self, z: np.ndarray, radial: np.ndarray) -> np.ndarray:
         """Every point closer to the centre than the narrowest wall radius is in the lumen."""
         return self.min_radius - radial
+
+    def axis_offset(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple:
+        """From the centre."""
+        return x, y, z
 
     def sample_interior(self, rng: np.random.Generator, n: int) -> np.ndarray:
         p = rng.uniform(-1.0, 1.0, (n, 3)) * self.axes * 1.2

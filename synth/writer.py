@@ -1,15 +1,20 @@
 """Writes an endopipe case folder (docs/formats.md) frame by frame, then the whole-sequence files.
 
 Everything goes to a temporary sibling folder that is renamed into place at the end, so an
-interrupted run never leaves something that looks like a finished case.
+interrupted run never leaves something that looks like a finished case. Another tool's layout
+(`Layout`: e.g. EndoNeRF's, written by the export library) may be written beside it, or instead
+of the frames (the ground truth in gt/ is always written).
 """
 
 from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Callable
+from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
+from typing import Protocol
 
 import av
 import cv2
@@ -21,6 +26,26 @@ from endopipe.stages.camera import Camera
 FPS = 15
 CRF = 14
 MARKER = "gt/synth.json"  # written last; marks a folder as a synth case we may replace
+
+
+class LayoutSink(Protocol):
+    """Another tool's layout, fed frame by frame as the case is rendered."""
+
+    def add_frame(self, rgb: np.ndarray, depth: np.ndarray, tool: np.ndarray | None) -> None:
+        """One frame: image (HxWx3 uint8 RGB), z-depth (mm, 0 = none), tool mask or None."""
+
+    def finish(self, poses: np.ndarray) -> None:
+        """The OpenCV c2w poses (N, 4, 4) of every frame, mm; after the last frame."""
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where and how another layout is written: `make(folder, camera)` opens its sink in
+    `subfolder` of the case (\"\": the case folder itself, in place of endopipe's frames)."""
+
+    name: str
+    make: Callable[[Path, Camera], LayoutSink]
+    subfolder: str = ""
 
 
 def _yuv_frame(rgb: np.ndarray) -> av.VideoFrame:
@@ -42,7 +67,9 @@ def _yuv_frame(rgb: np.ndarray) -> av.VideoFrame:
 class CaseWriter:
     """Streams frames into video.mp4, frames/*.png and gt/, then publishes the folder."""
 
-    def __init__(self, out: Path, intr: Camera, fps: int = FPS) -> None:
+    def __init__(
+        self, out: Path, intr: Camera, fps: int = FPS, layout: Layout | None = None
+    ) -> None:
         self.out = Path(out)
         if self.out.exists() and any(self.out.iterdir()) and not (self.out / MARKER).exists():
             raise FileExistsError(f"{self.out} exists and is not a synth case; refusing to replace")
@@ -52,12 +79,27 @@ class CaseWriter:
             shutil.rmtree(self.tmp)
         for sub in ("frames", "gt/depth", "gt/specular"):
             (self.tmp / sub).mkdir(parents=True)
+        self.intr = intr
+        self.count = 0
+        self.sink: LayoutSink | None = None
+        # endopipe's own frames (video, frames/, masks/, intrinsics.json) unless another layout
+        # takes the case folder's place.
+        self.frames = layout is None or layout.subfolder != ""
+        if layout is not None:
+            (self.tmp / layout.subfolder).mkdir(parents=True, exist_ok=True)
+            try:
+                self.sink = layout.make(self.tmp / layout.subfolder, intr)
+            except BaseException:
+                shutil.rmtree(self.tmp, ignore_errors=True)
+                raise
+        if not self.frames:
+            (self.tmp / "frames").rmdir()
+            self._container = None
+            return
         # intrinsics.json as stages/io reads it: `model` and `dist` for a distorted lens.
         self._write_json(
             "intrinsics.json", intr.model_dump(exclude=None if intr.distorted else {"dist"})
         )
-        self.intr = intr
-        self.count = 0
         self._container = av.open(str(self.tmp / "video.mp4"), mode="w")
         stream = self._container.add_stream("libx264", rate=fps)
         stream.width, stream.height, stream.pix_fmt = intr.width, intr.height, "yuv420p"
@@ -73,13 +115,29 @@ class CaseWriter:
     def _write_json(self, rel: str, obj: object) -> None:
         (self.tmp / rel).write_text(json.dumps(obj, indent=1))
 
-    def add_frame(self, rgb: np.ndarray, depth: np.ndarray, specular: np.ndarray) -> None:
-        """One frame: its image (HxWx3 uint8), exact z-depth (mm, 0 = miss), specular mask."""
+    def add_frame(
+        self,
+        rgb: np.ndarray,
+        depth: np.ndarray,
+        specular: np.ndarray,
+        tool: np.ndarray | None = None,
+    ) -> None:
+        """One frame: its image (HxWx3 uint8), exact z-depth (mm, 0 = miss), specular mask,
+        and where a tool covers it (masks/, 255 = tool: EndoNeRF's polarity) when one is in
+        the scene."""
         name = f"{self.count:06d}"
-        cv2.imwrite(str(self.tmp / "frames" / f"{name}.png"), rgb[:, :, ::-1])
         np.save(self.tmp / "gt" / "depth" / f"{name}.npy", depth.astype(np.float32))
         mask = np.where(specular, 255, 0).astype(np.uint8)
         cv2.imwrite(str(self.tmp / "gt" / "specular" / f"{name}.png"), mask)
+        if self.sink is not None:
+            self.sink.add_frame(rgb, depth, tool)
+        if not self.frames:
+            self.count += 1
+            return
+        cv2.imwrite(str(self.tmp / "frames" / f"{name}.png"), rgb[:, :, ::-1])
+        if tool is not None:
+            (self.tmp / "masks").mkdir(exist_ok=True)
+            cv2.imwrite(str(self.tmp / "masks" / f"{name}.png"), tool_mask_png(tool))
         frame = _yuv_frame(rgb)
         frame.pts = self.count
         frame.time_base = Fraction(1, self.fps)
@@ -95,9 +153,12 @@ class CaseWriter:
         meta: dict,
     ) -> None:
         """Close the video, write poses, mesh, centre line and metadata, publish the folder."""
-        for packet in self._stream.encode():
-            self._container.mux(packet)
-        self._container.close()
+        if self._container is not None:
+            for packet in self._stream.encode():
+                self._container.mux(packet)
+            self._container.close()
+        if self.sink is not None:
+            self.sink.finish(poses)
         self._write_json(
             "gt/poses.json",
             {"convention": "opencv_c2w", "units": "mm", "poses": poses.tolist()},
@@ -118,7 +179,13 @@ class CaseWriter:
     def abort(self) -> None:
         """Drop the temporary folder after a failure."""
         try:
-            self._container.close()
+            if self._container is not None:
+                self._container.close()
         except Exception:  # noqa: BLE001 - best effort on the way out of an error
             pass
         shutil.rmtree(self.tmp, ignore_errors=True)
+
+
+def tool_mask_png(tool: np.ndarray) -> np.ndarray:
+    """A tool mask as written: uint8, 255 = tool, 0 = tissue (EndoNeRF's polarity)."""
+    return np.where(tool, 255, 0).astype(np.uint8)

@@ -10,7 +10,11 @@ from endopipe.commands.terminal import console, out
 from endopipe.pipeline.errors import EndopipeError
 
 if TYPE_CHECKING:
-    from endopipe.synth import SynthConfig, SynthSummary
+    from endopipe.synth import Layout, SynthConfig, SynthSummary
+
+#: --layout: endopipe's case folder, EndoNeRF's layout instead of its frames, or both (EndoNeRF's
+#: in the case's endonerf/ folder).
+LAYOUTS = ("endopipe", "endonerf", "both")
 
 
 def synth_case(
@@ -25,6 +29,8 @@ def synth_case(
     fov_diag: float | None,
     vignetting: float,
     recording: dict | None = None,
+    motion: dict | None = None,
+    layout: str = "endopipe",
 ) -> None:
     """Validate the settings (one line naming the bad one), write the case, say what it is."""
     from pydantic import ValidationError
@@ -43,19 +49,37 @@ def synth_case(
             fov_diag_deg=fov_diag,
             vignetting=vignetting,
             **(recording or {}),
+            **(motion or {}),
         )
     except ValidationError as e:
         err = e.errors()[0]
         raise EndopipeError(f"synth {'.'.join(map(str, err['loc']))}: {err['msg']}") from None
+    if layout not in LAYOUTS:
+        raise EndopipeError(f"synth layout: {layout} is none of {', '.join(LAYOUTS)}")
     ensure_writable(out_dir.parent if out_dir.parent != Path("") else Path("."))
-    summary = write_synth(out_dir, cfg)
+    summary = write_synth(out_dir, cfg, other_layout(layout))
+    moving = ""
+    if summary.deform != "none":
+        moving = f", {summary.deform} {summary.deform_amplitude:g}"
+        moving += ", a tool in view (masks/)" if summary.tool else ""
     out.print(
         f"wrote {summary.frames} frames ({shape}, path {summary.path_length_mm:.1f} mm, "
-        f"mean radius {summary.mean_radius_mm:.1f} mm) to {out_dir} in {summary.seconds:.1f} s"
+        f"mean radius {summary.mean_radius_mm:.1f} mm{moving}) to {out_dir} in "
+        f"{summary.seconds:.1f} s"
     )
 
 
-def write_synth(out_dir: Path, cfg: SynthConfig) -> SynthSummary:
+def other_layout(layout: str) -> Layout | None:
+    """EndoNeRF's layout, written by the export library as the frames are rendered."""
+    if layout == "endopipe":
+        return None
+    from endopipe.export.endonerf_sink import EndoNerfSink
+    from endopipe.synth import Layout
+
+    return Layout("endonerf", EndoNerfSink, subfolder="endonerf" if layout == "both" else "")
+
+
+def write_synth(out_dir: Path, cfg: SynthConfig, layout: Layout | None = None) -> SynthSummary:
     """Generate the case with a transient progress bar (frames rendered so far)."""
     from rich.progress import Progress
 
@@ -63,4 +87,6 @@ def write_synth(out_dir: Path, cfg: SynthConfig) -> SynthSummary:
 
     with Progress(console=console, transient=True) as bar:
         task = bar.add_task("synth", total=cfg.frames)
-        return generate_case(out_dir, cfg, progress=lambda i, n: bar.update(task, completed=i + 1))
+        return generate_case(
+            out_dir, cfg, progress=lambda i, n: bar.update(task, completed=i + 1), layout=layout
+        )
