@@ -83,6 +83,8 @@ class BenchCase(BaseModel):
     given_lens: bool = True  # False: intrinsics.json withheld, COLMAP estimates the camera
     texture_contrast: float = 1.0  # synth --texture-contrast
     vignetting: float = 0.0  # synth --vignetting
+    deform: str = "none"  # synth --deform
+    still_camera: bool = False  # synth --still-camera
     sets: list[str] = []  # applied to this case's runs (e.g. the COLMAP camera model)
 
 
@@ -183,6 +185,21 @@ def _plan(quick: bool) -> BenchPlan:
             # a 140-degree fisheye, the lens estimated as any scope's is (SIMPLE_RADIAL, which
             # bends back inside it: re-fitted as a fisheye, poses.unfold_lens)
             BenchCase(**COLON, name="colon_fisheye_est", lens="fisheye", given_lens=False),
+            # moving anatomy: the bench colon breathing (the same camera path), and a still
+            # camera on the cavity's wall pulled by a tool in view (no parallax for SfM: the
+            # true poses are given)
+            BenchCase(**COLON, name="colon_breathe", deform="breathe"),
+            BenchCase(
+                name="pull_still",
+                shape="cavity",
+                frames=120,
+                width=320,
+                height=256,
+                seed=7,
+                deform="pull",
+                still_camera=True,
+                sets=["poses.source=gt"],
+            ),
         ],
         variants=list(VARIANTS),
         sets=[],
@@ -265,6 +282,8 @@ def synth_input(inputs: Path, case: BenchCase, console) -> Path:
                 fov_diag_deg=case.fov_diag,
                 texture_contrast=case.texture_contrast,
                 vignetting=case.vignetting,
+                deform=case.deform,
+                still_camera=case.still_camera,
             ),
         )
     return src
@@ -276,6 +295,8 @@ def input_name(case: BenchCase) -> str:
     fov = "" if case.fov_diag is None else f"_fov{case.fov_diag:g}"
     look = "" if case.texture_contrast == 1.0 else f"_c{case.texture_contrast:g}"
     look += "" if case.vignetting == 0.0 else f"_v{case.vignetting:g}"
+    look += "" if case.deform == "none" else f"_{case.deform}"
+    look += "_still" if case.still_camera else ""
     return f"{case.shape}_s{case.seed}_{case.frames}x{case.width}x{case.height}{lens}{fov}{look}"
 
 
