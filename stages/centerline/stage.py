@@ -36,6 +36,7 @@ from endopipe.stages.centerline.view import (
     CENTERLINE_FILE,
     PLOT_FILE,
     PRIOR_FILE,
+    CenterlineFile,
     CenterlineView,
 )
 from endopipe.stages.ingest.view import IngestView
@@ -49,7 +50,7 @@ class Centerline(Stage):
 
     name = "centerline"
     needs = ("ingest", "poses")
-    version = 6  # 6: the widest empty core the SfM points allow (prior.npz `core_limit`)
+    version = 7  # 7: a still camera gets no prior and relative units
     Config = CenterlineConfig
     Summary = CenterlineSummary
     View = CenterlineView
@@ -60,6 +61,9 @@ class Centerline(Stage):
         centres = poses.centres()
         if len(centres) == 0:
             raise StageFailed("centerline: no registered cameras in 02_poses")
+        motion = poses.summary.motion
+        if motion is not None and motion.camera == "still":
+            return no_parallax(ctx, centres, poses.file.units)
         view_dirs = np.array([poses.c2w[i][:3, 2] for i in poses.registered]).reshape(-1, 3)
         points = poses.points()
         units = poses.file.units
@@ -175,6 +179,46 @@ class Centerline(Stage):
                 )
             )
         return summary
+
+
+#: A still camera: the scene's typical distance, in the relative units its depth is given in.
+STILL_DEPTH = 1.0
+#: ... and how far rays reach past it (a laparoscope's view of tissue spans about 0.5-2x the
+#: typical distance).
+STILL_REACH = 4.0
+
+
+def no_parallax(ctx: StageContext[CenterlineConfig], centres: np.ndarray, units: str):
+    """A still camera saw nothing from two places: no points, no shape to fit. No prior; the
+    scene's unit is set so that the typical depth is 1 (relative depth, said so)."""
+    cfg = ctx.config
+    scale = cfg.free_scale * STILL_DEPTH
+    prior = FreePrior(centres.mean(0), scale, STILL_REACH * STILL_DEPTH, STILL_DEPTH)
+    reason = (
+        "none: the camera stands still, so no parallax places any point; depth is relative "
+        f"(the typical distance is {STILL_DEPTH:g} unit by definition)"
+    )
+    ctx.log(f"prior: {reason}")
+    save_prior(prior, ctx.out / PRIOR_FILE)
+    write_json(
+        ctx.out / CENTERLINE_FILE,
+        CenterlineFile(
+            kind="none", units="relative", points=[], radius=[], arclength=[]
+        ).model_dump(mode="json", exclude_none=True),
+    )
+    return CenterlineSummary(
+        kind="none",
+        prior_reason=reason,
+        prior_weight=0.0,
+        reach=prior.reach,
+        length=0.0,
+        mean_radius=scale,
+        radius_source="none",
+        radius_note="a still camera: no points",
+        n_points_used=0,
+        n_cameras=len(centres),
+        units="relative",
+    )
 
 
 def observation_rays(

@@ -9,7 +9,12 @@ import numpy as np
 
 from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.io.ground_truth import GroundTruthSource, depth_of_frame
-from endopipe.stages.metrics.baselines import brightness_guess, radial_guess
+from endopipe.stages.metrics.baselines import (
+    brightness_guess,
+    neighbour_average,
+    neighbour_frames,
+    radial_guess,
+)
 from endopipe.stages.metrics.depth import (
     affine_sequence_metrics,
     depth_sequence_metrics,
@@ -106,7 +111,26 @@ def evaluate(
         metrics["heldout_psnr"] = float(np.mean([p["psnr"] for p in per.values()]))
         metrics["heldout_ssim"] = float(np.mean([p["ssim"] for p in per.values()]))
         metrics["per_frame_image"] = {str(i): per[i] for i in ids}
+        metrics["neighbour_average"] = neighbour_scores(ingest, ids)
     return metrics
+
+
+def neighbour_scores(ingest: IngestView, held: list[int]) -> dict[str, float]:
+    """PSNR / SSIM of the held-out frames predicted by averaging their neighbours (the nearest
+    frames before and after that were trained on), on the same pixels as ours."""
+    order = [f.index for f in ingest.frames]
+    rows = []
+    for i in held:
+        near = neighbour_frames(i, order, set(held))
+        if not near:
+            continue
+        guess = neighbour_average([ingest.image(j).astype(np.float32) / 255.0 for j in near])
+        rows.append(
+            image_metrics(guess, ingest.image(i).astype(np.float32) / 255.0, ingest.mask(i) > 127)
+        )
+    if not rows:
+        return {}
+    return {k: float(np.mean([r[k] for r in rows])) for k in ("psnr", "ssim")}
 
 
 def scores_by_support(

@@ -32,6 +32,8 @@ class DepthMetrics(MetricsFile):
     heldout_psnr: float | None = None
     heldout_ssim: float | None = None
     per_frame_image: dict[str, dict[str, float]] | None = None
+    #: the held-out frames predicted by averaging their trained neighbours: {"psnr", "ssim"}
+    neighbour_average: dict[str, float] | None = None
     #: ours on the pixels other views agree with ("seen_again") and on the rest ("rest"),
     #: each with the headline protocol block (median-scaled, or affine-invariant)
     by_support: dict[str, DepthScores] | None = None

@@ -1,5 +1,6 @@
 """How a depth map is rendered from a case's trained field: the baked surface (the default) or
-the field itself, at the poses the field was fitted to. The depth stage renders the keyframes
+the field itself, at the poses the field was fitted to (a dynamic field: always the field, each
+frame at its own time). The depth stage renders the keyframes
 with it; a recording renders the frames between them with the same, one window at a time."""
 
 from __future__ import annotations
@@ -67,10 +68,13 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, ner
             return kept
         return render_image(model, prior, k, c2w, colour=True)["rgb"]
 
-    if cfg.renderer == "field":
+    if cfg.renderer == "field" or model.field.dynamic:
+        # A dynamic field has no one surface to bake: each frame renders at its own time.
+        position = {f: p for p, f in enumerate(getattr(model, "meta", {}).get("frame_ids", []))}
 
         def render_field(k, c2w, i, colour):
-            out = render_image(model, prior, k, c2w, colour=colour)
+            with model.at_frame(position.get(i)):
+                out = render_image(model, prior, k, c2w, colour=colour)
             found, out["hazy"] = surface_found(
                 out["opacity"], out["spread"], cfg.min_opacity, cfg.max_spread
             )

@@ -39,7 +39,7 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    version = 8  # 8: the pixels past an estimated lens's fitted radius are inferred
+    version = 9  # 9: held-out frames scored beside their neighbours' average
     Config = DepthConfig
     Summary = DepthSummary
     View = DepthView
@@ -53,6 +53,9 @@ class Depth(Stage):
         sight = FieldSight.open(cfg, ingest, poses, centerline, nerf)
         renderer, k, c2w, bake_s = sight.render, sight.camera, sight.c2w, sight.bake_s
         heldout = set(getattr(sight.model, "meta", {}).get("heldout", []))
+        used = "field" if sight.model.field.dynamic else cfg.renderer
+        if used != cfg.renderer:
+            ctx.log("renderer field: a dynamic field renders each frame at its own time")
         beyond_lens = unseen_pixels(k, ingest)  # no ray, or outside the scope: no depth
         for sub in (DEPTH_DIR, OPACITY_DIR):
             (ctx.out / sub).mkdir()
@@ -60,7 +63,7 @@ class Depth(Stage):
         lens_px, unknown_px, hazy_px = int((~beyond_lens).sum()), 0, 0
         with (
             ctx.progress("depth", total=len(poses.registered)) as advance,
-            torch_threads(1 if cfg.renderer == "baked" else None),
+            torch_threads(1 if used == "baked" else None),
         ):
             for i in poses.registered:
                 t0 = time.perf_counter()
@@ -78,7 +81,17 @@ class Depth(Stage):
                 advance(info=f"{1000 * times[-1]:.0f} ms/frame")
         png_scale = write_depth_pngs(ctx.out / DEPTH_DIR, depths)
         extrapolated = poses.past_fitted_radius(k)
-        support = write_support(ctx.out, cfg, ingest, depths, c2w, k, beyond_lens, extrapolated)
+        motion = poses.summary.motion
+        still = motion is not None and motion.camera == "still"
+        if still:
+            ctx.log(
+                "depth from one viewpoint (the camera stands still): no pixel was seen from two "
+                "places, so depth is relative, from shading, smoothness and the field's fit "
+                "over time, and weaker than depth measured by parallax"
+            )
+        support = write_support(
+            ctx.out, cfg, ingest, depths, c2w, k, beyond_lens, extrapolated, still
+        )
         gt = ingest.ground_truth_for_scores(ctx.log)
         gt_depths = ground_truth_depths(gt, ingest, list(depths))
         evaluation = evaluate(gt, ingest, depths, gt_depths, rgbs, principal=(k.cx, k.cy))
@@ -101,7 +114,7 @@ class Depth(Stage):
         ms = 1000 * float(np.median(times[1:] if len(times) > 1 else times))
         pixels = max(lens_px * len(depths), 1)
         ctx.log(
-            f"{len(depths)} depth maps, {ms:.0f} ms per frame ({cfg.renderer}; "
+            f"{len(depths)} depth maps, {ms:.0f} ms per frame ({used}; "
             f"baking {bake_s:.1f} s); no depth on {unknown_px / pixels:.1%} of the lens's "
             f"pixels, {hazy_px / pixels:.1%} for a ray spread over no one surface "
             "(depth.max_spread)"
@@ -120,7 +133,7 @@ class Depth(Stage):
             png_scale=png_scale,
             ms_per_frame=ms,
             bake_s=bake_s,
-            renderer=cfg.renderer,
+            renderer=used,
             gt_kind=metrics.gt_kind,
             median_scaled=metrics.median_scaled,
             sequence_scaled=metrics.sequence_scaled,
@@ -135,6 +148,9 @@ class Depth(Stage):
             baselines=metrics.baselines,
             heldout_psnr=metrics.heldout_psnr,
             heldout_ssim=metrics.heldout_ssim,
+            one_viewpoint=still,
+            neighbour_psnr=(metrics.neighbour_average or {}).get("psnr"),
+            neighbour_ssim=(metrics.neighbour_average or {}).get("ssim"),
         )
 
 

@@ -32,6 +32,11 @@ class DepthSummary(Summary):
     baselines: dict[str, ProtocolScores] | None = None
     heldout_psnr: float | None = None
     heldout_ssim: float | None = None
+    #: the camera stood still: every depth from one viewpoint (relative, no parallax)
+    one_viewpoint: bool = False
+    #: the held-out frames predicted by averaging their trained neighbours (no geometry)
+    neighbour_psnr: float | None = None
+    neighbour_ssim: float | None = None
 
     def scores(self) -> ProtocolScores:
         """Our protocol blocks in the shape the guesses' have, to show them side by side."""

@@ -88,12 +88,19 @@ def write_support(
     camera: Camera,
     beyond_lens: np.ndarray,
     extrapolated: np.ndarray | None = None,
+    still: bool = False,
 ) -> Support | None:
     """views/<i>.npy (uint8 agreeing views) and inferred/<i>.npy (bool) per frame; None when
-    depth.support_frames is 0."""
+    depth.support_frames is 0. A `still` camera saw every pixel from one place only: frames
+    that agree there agree with the field's one guess, not with a second view, so no view
+    counts (every depth rests on one view)."""
     if cfg.support_frames <= 0 or not depths:
         return None
-    counts = consistent_views(depths, c2w, camera, cfg.support_frames, cfg.support_tolerance)
+    counts = (
+        {i: np.zeros(d.shape, np.uint8) for i, d in depths.items()}
+        if still
+        else consistent_views(depths, c2w, camera, cfg.support_frames, cfg.support_tolerance)
+    )
     for sub in (VIEWS_DIR, INFERRED_DIR):
         (out / sub).mkdir(exist_ok=True)
     fov = ingest.fov()

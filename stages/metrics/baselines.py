@@ -1,4 +1,5 @@
-"""Two depth guesses that look at no geometry, scored beside ours so a number has a floor.
+"""Guesses that look at no geometry, scored beside ours so a number has a floor: two of depth,
+and one of a held-out frame's colour (its neighbours' average).
 
 A reconstruction that does not beat these has not reconstructed the scene; it has only
 rediscovered what every endoscopic frame looks like. Plain functions over arrays, no I/O;
@@ -46,3 +47,19 @@ def brightness_guess(rgb: np.ndarray, blur_of_diagonal: float = BLUR_OF_DIAGONAL
     sigma = blur_of_diagonal * float(np.hypot(*grey.shape[:2]))
     blurred = cv2.GaussianBlur(grey, (0, 0), sigmaX=sigma) if sigma > 0 else grey
     return (1.0 / np.sqrt(np.clip(blurred, 0.0, None) + BRIGHTNESS_FLOOR)).astype(np.float32)
+
+
+def neighbour_frames(held: int, order: list[int], skip: set[int]) -> list[int]:
+    """The frames a held-out frame's neighbour average takes: the nearest frame before and the
+    nearest after it in `order` (the input's frame order) that are not in `skip` (the held-out
+    ones), or the one there is at an end."""
+    pos = order.index(held)
+    before = next((i for i in reversed(order[:pos]) if i not in skip), None)
+    after = next((i for i in order[pos + 1 :] if i not in skip), None)
+    return [i for i in (before, after) if i is not None]
+
+
+def neighbour_average(images: list[np.ndarray]) -> np.ndarray:
+    """A held-out frame predicted by averaging its neighbours (the deformable-scene field's
+    floor: on a still camera it is hard to beat, and it knows nothing of the scene's shape)."""
+    return np.mean(np.stack([np.asarray(x, np.float32) for x in images]), axis=0)

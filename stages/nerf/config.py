@@ -127,6 +127,19 @@ class FieldConfig(_Section):
     positional: PositionalConfig = Field(
         default_factory=PositionalConfig, description="Positional-encoding MLP."
     )
+    dynamic: Literal["auto", "off", "on"] = Field(
+        "auto",
+        description="A field that changes with time (HexPlane's space-time planes on the "
+        "TensoRF grid): every frame is fitted and rendered at its own time. auto: on when the "
+        "poses stage found the scene moving under a still camera (tissue pulled, cut or "
+        "breathing; instruments), off for a rigid scene.",
+    )
+    time_nodes: int = Field(
+        0,
+        ge=0,
+        description="Nodes along time of the space-time planes; 0: one per two frames, 4 to "
+        "64 (a held-out frame then lies between nodes its neighbours fitted).",
+    )
     warp: bool | Literal["auto"] = Field(
         "auto",
         description="Warp the grid per axis: linear around the camera path, logarithmic "

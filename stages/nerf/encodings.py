@@ -171,6 +171,83 @@ class VMGrid(nn.Module):
         return tv
 
 
+class VMTimeGrid(VMGrid):
+    """HexPlane's space-time factorisation on the VM grid: sum_m plane_m(u, v) * plane_m(w, t),
+    each line of `VMGrid` grown into a plane over (w, time) with `times` nodes along time.
+
+    Why this form: a scene that deforms is still mostly the same scene, and the spatial planes
+    keep what all times share while the (w, t) planes carry how it changes; the cost per point
+    is two more table rows than the static grid's. Points are (N, 4): grid x, y, z and the
+    time, all in [-1, 1]. Upsampling refines space only (the time nodes are fixed).
+    """
+
+    def __init__(
+        self, res: tuple[int, int, int], channels: int, times: int, init_std: float = 0.1
+    ) -> None:
+        self.times = int(times)
+        super().__init__(res, channels, init_std)
+
+    def _line_rows(self) -> int:
+        return self.times * super()._line_rows()
+
+    def prepare(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        pidx, pw, _, _ = super().prepare(x[:, :3])
+        a, b, c, res, ra, poff, loff, corner = self._constants(x.device)
+        with torch.no_grad():
+            p = ((x[:, :3] + 1.0) * (0.5 * (res - 1))).clamp_(min=0.0).minimum(res - 1.0)
+            ic = p[:, c].floor().minimum(res[c] - 2.0)
+            fc = p[:, c] - ic
+            q = ((x[:, 3] + 1.0) * (0.5 * (self.times - 1))).clamp_(0.0, self.times - 1.0)
+            it = q.floor().clamp_(max=max(self.times - 2, 0))
+            ft = (q - it)[:, None]
+            rc = res[c]
+            base = self.times * loff + it.long()[:, None] * rc + ic.long()  # (N, 3)
+            lidx = torch.stack([base, base + 1, base + rc, base + rc + 1], -1).reshape(-1, 4)
+            gc, gt = 1.0 - fc, 1.0 - ft
+            lw = torch.stack([gc * gt, fc * gt, gc * ft, fc * ft], -1).reshape(-1, 4)
+        return pidx, pw, lidx, lw
+
+    @torch.no_grad()
+    def upsampled(self, res: tuple[int, int, int]) -> VMTimeGrid:
+        new = VMTimeGrid(res, self.channels, self.times)
+        space = VMGrid.upsampled(self._as_static(), res)
+        new.planes = space.planes
+        lines, loff = [], 0
+        for *_, c in self.PAIRS:
+            rc = self.res[c]
+            ln = self.lines[loff : loff + self.times * rc].T.reshape(1, self.channels, self.times, rc)
+            ln = F.interpolate(ln, size=(self.times, res[c]), mode="bilinear", align_corners=True)
+            lines.append(ln.reshape(self.channels, -1).T)
+            loff += self.times * rc
+        new.lines = nn.Parameter(torch.cat(lines).contiguous())
+        return new.to(self.planes.device)
+
+    def _as_static(self) -> VMGrid:
+        """The spatial planes as a static grid (its lines unused), to resample them."""
+        g = VMGrid.__new__(VMGrid)
+        nn.Module.__init__(g)
+        g.channels, g.res, g._consts = self.channels, self.res, {}
+        g.planes = self.planes
+        g.lines = nn.Parameter(self.lines[: VMGrid._line_rows(self)].detach())
+        return g
+
+    def total_variation(self) -> torch.Tensor:
+        """TV of the spatial planes, and of the (w, t) planes along w and along time."""
+        tv = self.planes.new_zeros(())
+        poff, loff = 0, 0
+        for a, b, c in self.PAIRS:
+            ra, rb, rc = self.res[a], self.res[b], self.res[c]
+            p = self.planes[poff : poff + ra * rb].view(rb, ra, -1)
+            tv = tv + (p[1:] - p[:-1]).square().mean() + (p[:, 1:] - p[:, :-1]).square().mean()
+            ln = self.lines[loff : loff + self.times * rc].view(self.times, rc, -1)
+            tv = tv + (ln[:, 1:] - ln[:, :-1]).square().mean()
+            if self.times > 1:
+                tv = tv + (ln[1:] - ln[:-1]).square().mean()
+            poff += ra * rb
+            loff += self.times * rc
+        return tv
+
+
 _PRIMES = (1, 2654435761, 805459861)
 
 

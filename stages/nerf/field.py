@@ -20,8 +20,15 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from endopipe.pipeline.errors import ConfigError
 from endopipe.stages.nerf.config import FieldConfig
-from endopipe.stages.nerf.encodings import HashGrid, VMGrid, sinusoidal, sinusoidal_dim
+from endopipe.stages.nerf.encodings import (
+    HashGrid,
+    VMGrid,
+    VMTimeGrid,
+    sinusoidal,
+    sinusoidal_dim,
+)
 
 
 def _mlp(dims: list[int]) -> nn.Sequential:
@@ -34,7 +41,7 @@ def _mlp(dims: list[int]) -> nn.Sequential:
 
 
 def _inside(x: torch.Tensor) -> torch.Tensor:
-    return (x.abs() <= 1.0).all(-1)
+    return (x[..., :3].abs() <= 1.0).all(-1)
 
 
 class RadianceField(nn.Module):
@@ -55,6 +62,11 @@ class RadianceField(nn.Module):
     @property
     def is_sdf(self) -> bool:
         return self.cfg.geometry == "sdf"
+
+    @property
+    def dynamic(self) -> bool:
+        """Whether points carry a fourth coordinate, the time (see `VMTimeGrid`)."""
+        return self.cfg.dynamic == "on"
 
     @property
     def cell(self) -> float:
@@ -137,8 +149,12 @@ class TensorfField(RadianceField):
         t = cfg.tensorf
         self.extent = tuple(float(e) for e in box_extent)
         res = self._res(t.res_init)
-        self.density_grid = VMGrid(res, t.density_components, init_std=0.1)
-        self.app_grid = VMGrid(res, t.appearance_components, init_std=0.1)
+        if cfg.dynamic == "on":
+            self.density_grid = VMTimeGrid(res, t.density_components, cfg.time_nodes, 0.1)
+            self.app_grid = VMTimeGrid(res, t.appearance_components, cfg.time_nodes, 0.1)
+        else:
+            self.density_grid = VMGrid(res, t.density_components, init_std=0.1)
+            self.app_grid = VMGrid(res, t.appearance_components, init_std=0.1)
         self.basis = nn.Linear(3 * t.appearance_components, t.appearance_dim, bias=False)
         h = cfg.color_hidden
         self.color = _mlp([t.appearance_dim + self.dir_dim, h, h, 3])
@@ -304,6 +320,11 @@ def laplace_density(d: torch.Tensor, beta: torch.Tensor) -> torch.Tensor:
 
 
 def make_field(cfg: FieldConfig, box_extent: tuple[float, float, float]) -> RadianceField:
+    if cfg.dynamic == "on" and (cfg.encoding != "tensorf" or cfg.geometry == "sdf"):
+        raise ConfigError(
+            "nerf.field.dynamic=on needs the tensorf encoding and density geometry; set "
+            "nerf.field.encoding=tensorf and nerf.field.geometry=density"
+        )
     if cfg.encoding == "tensorf":
         return TensorfField(cfg, box_extent)
     if cfg.encoding == "hashgrid":

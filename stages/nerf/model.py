@@ -21,6 +21,7 @@ undone (camera.rays.pixel_directions), and poses and the scene frame only rotate
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 
 import torch
 from torch import nn
@@ -35,7 +36,14 @@ FALLOFF_TERMS = 3
 
 
 #: Entries of the state dict added after model.pt files were first written.
-NEW_KEYS = ("exposure_trained", "falloff", "log_gamma", "field.beta", "field.start")
+NEW_KEYS = (
+    "exposure_trained",
+    "falloff",
+    "log_gamma",
+    "field.beta",
+    "field.start",
+    "frame_time",
+)
 
 
 class NerfModel(nn.Module):
@@ -52,6 +60,10 @@ class NerfModel(nn.Module):
         self.register_buffer("exposure_trained", torch.ones(max(n_frames, 1)))
         self.falloff = nn.Parameter(torch.zeros(FALLOFF_TERMS))  # a_k: F = 1 at the start
         self.log_gamma = nn.Parameter(torch.tensor(math.log(cfg.shading.gamma)))
+        # A dynamic field's time of each frame (by position), in [-1, 1]; `_time` the rays'
+        # (or one for all) while rendering: `to_grid` appends it to every point.
+        self.register_buffer("frame_time", torch.zeros(max(n_frames, 1)))
+        self._time: torch.Tensor | None = None
 
     def set_trained_frames(self, frames: list[int]) -> None:
         """Only these frames' exposures are fitted (and define their zero mean)."""
@@ -115,7 +127,39 @@ class NerfModel(nn.Module):
 
     # --- geometry helpers ---------------------------------------------------------------------
     def to_grid(self, x: torch.Tensor) -> torch.Tensor:
-        return self.box.to_grid(x)
+        """Grid coordinates of scene points; a dynamic field's get their time as a fourth
+        column: the rays' being rendered (points ray-major, each ray's together), else the one
+        set by `at_frame`, else the first frame's."""
+        g = self.box.to_grid(x)
+        if not self.field.dynamic:
+            return g
+        flat = g.reshape(-1, 3)
+        t = self._time if self._time is not None else self.frame_time[:1]
+        if t.numel() == 1:
+            tt = t.reshape(1).expand(flat.shape[0])
+        else:
+            if flat.shape[0] % t.shape[0]:
+                raise ValueError("points of a dynamic field must be ray-major, whole rays")
+            tt = t.repeat_interleave(flat.shape[0] // t.shape[0])
+        return torch.cat([flat, tt[:, None].to(flat.dtype)], -1).reshape(*g.shape[:-1], 4)
+
+    def set_frame_times(self, times: list[float]) -> None:
+        """Each frame's time (by position; seconds or any increasing number), mapped to [-1, 1]."""
+        t = torch.as_tensor(times, dtype=torch.float64)
+        span = float(t.max() - t.min()) if len(t) > 1 else 0.0
+        scaled = 2.0 * (t - t.min()) / span - 1.0 if span > 0 else torch.zeros_like(t)
+        self.frame_time.copy_(scaled.to(self.frame_time))
+
+    @contextmanager
+    def at_frame(self, frame: int | None):
+        """Render (depth, density grids, meshes) at frame `frame`'s time (by position)."""
+        before = self._time
+        if frame is not None:
+            self._time = self.frame_time[frame : frame + 1]
+        try:
+            yield self
+        finally:
+            self._time = before
 
     def density_scene(self, x: torch.Tensor) -> torch.Tensor:
         """sigma at scene points (M, 3)."""
@@ -193,6 +237,15 @@ class NerfModel(nn.Module):
     ) -> dict[str, torch.Tensor]:
         """Render rays (scene frame). Returns depth (z, scene units), opacity, and when `colour`:
         rgb (display-encoded), plus normal/cos when computed, the samples t and weights."""
+        before = self._time
+        if self.field.dynamic and frame is not None:
+            self._time = self.frame_time[frame]
+        try:
+            return self._render_rays(o, d, near, far, frame, jitter, gen, colour, normals, shading_mix)
+        finally:
+            self._time = before
+
+    def _render_rays(self, o, d, near, far, frame, jitter, gen, colour, normals, shading_mix):
         dnorm = d.norm(dim=-1)
         t = self.sample(o, d, near, far, jitter, gen)
         out = self._composite(o, d, t, dnorm, far, colour)

@@ -221,6 +221,41 @@ def choose_geometry(cfg: NerfConfig, prior, log) -> NerfConfig:
     return cfg.model_copy(update={"field": field})
 
 
+def choose_dynamic(cfg: NerfConfig, poses, n_frames: int, log) -> NerfConfig:
+    """field.dynamic auto: a field that changes with time where the poses stage found the scene
+    moving under a still camera, the static field otherwise; the log says which and why.
+    A dynamic field's frames are not one scene at different places, so the multi-frame depth
+    consistency (which warps one frame's depth into another's) is off."""
+    motion = poses.summary.motion
+    dynamic = cfg.field.dynamic
+    if dynamic == "auto":
+        moving = motion is not None and motion.scene == "moving"
+        dynamic = "on" if moving else "off"
+        why = (
+            f"the footage is {motion.label}"
+            if motion is not None
+            else "the footage's motion was not judged (poses from a file or the truth)"
+        )
+        log(f"field auto: {'dynamic (space-time planes)' if moving else 'static'}: {why}")
+    if dynamic == "off":
+        return cfg.model_copy(update={"field": cfg.field.model_copy(update={"dynamic": "off"})})
+    nodes = cfg.field.time_nodes or int(np.clip(round(n_frames / 2), 4, 64))
+    field = cfg.field.model_copy(
+        update={"dynamic": "on", "time_nodes": nodes, "geometry": "density"}
+    )
+    loss = cfg.loss.model_copy(update={"geo": False})
+    log(f"dynamic field: {nodes} time nodes over {n_frames} frames; multi-frame depth off")
+    return cfg.model_copy(update={"field": field, "loss": loss})
+
+
+def frame_times(ingest, ids: list[int]) -> list[float]:
+    """Each frame's time: its time in the video, else its position in the input."""
+    frames = [ingest.frame(i) for i in ids]
+    if all(f.time_s is not None for f in frames):
+        return [float(f.time_s) for f in frames]
+    return [float(f.source_index) for f in frames]
+
+
 def build_frames(ingest, poses, device: torch.device):
     """Registered frames (endopipe order): images in [0, 1], usable masks, world c2w."""
     ids = [i for i in poses.registered if i < len(ingest.frames)]
@@ -259,8 +294,9 @@ def set_up_training(
     device = pick_device(cfg.train.device)
     prior = load_prior(centerline)
     cfg = weigh_prior(cfg, prior, log)
-    cfg = choose_geometry(cfg, prior, log)
     ids, k, images, masks, c2w = build_frames(ingest, poses, device)
+    cfg = choose_dynamic(cfg, poses, len(ids), log)
+    cfg = choose_geometry(cfg, prior, log)
     box = fit_box(c2w, k, images.shape[1:3], prior, cfg, poses.points(), log)
     cfg = regularise_far_view(cfg, box, log)
     frames = FrameSet(images, masks, np.stack([box.c2w_to_scene(c) for c in c2w]), k, ids, device)
@@ -276,6 +312,7 @@ def set_up_training(
     trainer = Trainer(
         cfg, frames, [pos[i] for i in train_ids], prior, box, out, log, sparse, refine
     )
+    trainer.model.set_frame_times(frame_times(ingest, ids))
     return TrainingSetUp(cfg, trainer, prior, ids, k, c2w, train_ids, held_ids, pos, refine)
 
 
@@ -365,6 +402,7 @@ class Nerf(Stage):
             grid_warp=trainer.box.warped,
             core_fraction=trainer.core_fraction,
             geometry=run.cfg.field.geometry,
+            time_nodes=run.cfg.field.time_nodes if run.cfg.field.dynamic == "on" else None,
         )
 
 
@@ -379,7 +417,8 @@ def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) 
     (ctx.out / HELDOUT_RGB_DIR).mkdir(exist_ok=True)
     for i in held:
         t0 = time.perf_counter()
-        out = render_image(model, prior, k, c2w[pos[i]])
+        with model.at_frame(pos[i]):  # a dynamic field: at the frame's own time
+            out = render_image(model, prior, k, c2w[pos[i]])
         times.append(time.perf_counter() - t0)
         save_rgb16(ctx.out / HELDOUT_RGB_DIR / f"{i:06d}.png", out["rgb"])  # the depth stage's
         img = ingest.image(i).astype(np.float32) / 255.0

@@ -60,3 +60,5 @@ class NerfSummary(Summary):
     grid_warp: bool | None = None  # the grid warped beyond the camera path (field.warp)
     core_fraction: float | None = None  # L_prior's empty core used (fraction of the wall)
     geometry: str | None = None  # density or sdf, as field.geometry resolved for this case
+    #: a dynamic field (field.dynamic resolved on): its nodes along time; None: static
+    time_nodes: int | None = None

@@ -348,13 +348,16 @@ class Trainer:
         """Rendered depth against the SfM points' depth on a random draw of tracked pixels."""
         assert self.sparse is not None
         frame, u, v, z = self.sparse.sample(self.cfg.loss.sparse_rays, self.gen)
-        return losses.sparse_depth(self._depth(*self.frames.rays(frame, u, v)), z)
+        return losses.sparse_depth(self._depth(*self.frames.rays(frame, u, v), frame), z)
 
-    def _depth(self, o: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
-        """Rendered depth of extra rays (density only, jittered, with gradients)."""
+    def _depth(
+        self, o: torch.Tensor, d: torch.Tensor, frame: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Rendered depth of extra rays (density only, jittered, with gradients), at their
+        frames' time (a dynamic field)."""
         near, far, _ = self.pb.bounds(o, d, self.pb.margin)
         out = self.model.render_rays(
-            o, d, near, far, jitter=True, gen=self.gen, colour=False, normals=False
+            o, d, near, far, frame=frame, jitter=True, gen=self.gen, colour=False, normals=False
         )
         return out["depth"]
 
@@ -373,7 +376,7 @@ class Trainer:
         vi = v.detach().round().long().clamp(0, h - 1)
         valid = inside & self.frames.masks[nb, vi, ui]
         o2, d2 = self.frames.pixel_rays(c2w, u.detach(), v.detach())
-        return losses.geometric_consistency(zc, self._depth(o2, d2), valid)
+        return losses.geometric_consistency(zc, self._depth(o2, d2, nb), valid)
 
     # --- poses ------------------------------------------------------------------------------------
     def refine_heldout(self, held: list[int]) -> bool:

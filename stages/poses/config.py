@@ -20,6 +20,60 @@ CameraModelName = Literal[
 ]
 
 
+class MotionConfig(BaseModel):
+    """How the footage's motion is judged (poses.motion)."""
+
+    check: bool = Field(
+        True,
+        description="Judge whether the camera moves and the scene holds still before SfM; a "
+        "still camera gets one fixed pose instead of a path made of the tissue's motion.",
+    )
+    span_s: float = Field(
+        1.0, gt=0.0, description="Seconds over which corners are tracked (the baseline)."
+    )
+    fps: float = Field(
+        25.0, gt=0.0, description="Frame rate assumed for inputs without time (image folders)."
+    )
+    still_move: float = Field(
+        0.02,
+        gt=0.0,
+        description="The camera stands still when the corners move less than this over a span "
+        "(median over the spans, a fraction of the image diagonal): a fixed da Vinci camera "
+        "over moving tissue 0.0066; moving scopes 0.029-0.085.",
+    )
+    min_kept: float = Field(
+        0.3,
+        ge=0.0,
+        le=1.0,
+        description="A span whose corners are mostly lost (fewer than this share tracked to its "
+        "end) saw the view change: the camera moved.",
+    )
+    moving_corner: float = Field(
+        0.004,
+        gt=0.0,
+        description="Under a still camera a corner that strays farther than this from where it "
+        "started (a fraction of the diagonal) moved with the scene.",
+    )
+    deforming_share: float = Field(
+        0.1,
+        ge=0.0,
+        le=1.0,
+        description="Under a still camera the scene moves (tissue, instruments) when more than "
+        "this share of the corners moved.",
+    )
+    corners: int = Field(300, ge=20, description="Corners tracked from the start of each span.")
+    spans: int = Field(12, ge=1, description="Spans sampled evenly over the footage.")
+    assumed_hfov_deg: float = Field(
+        60.0,
+        gt=10.0,
+        lt=170.0,
+        description="A still camera without known intrinsics (no parallax to estimate them "
+        "from): the horizontal field of view assumed, and said to be assumed (a da Vinci "
+        "endoscope: 59 degrees). Depth is then relative anyway.",
+    )
+
+
+
 class VerdictConfig(BaseModel):
     """When a frame or a sequence is called doubtful."""
 
@@ -147,6 +201,10 @@ class PosesConfig(StageConfig):
         "opinion; the sounder is kept). both: always both (their disagreement, and that of their "
         "self-calibrated lenses, is evidence too; C3VD: +170 s, and a wrong second lens that made "
         "sound poses doubtful).",
+    )
+    motion: MotionConfig = Field(
+        default_factory=MotionConfig,
+        description="Whether the camera moves and the scene holds still, judged before SfM.",
     )
     verdict: VerdictConfig = Field(
         default_factory=VerdictConfig,

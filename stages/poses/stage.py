@@ -19,11 +19,12 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 
 from endopipe.pipeline.errors import ConfigError, InputError, StageFailed
 from endopipe.pipeline.stage import Stage, StageContext, write_json
-from endopipe.stages.camera import apply_sim3, umeyama
+from endopipe.stages.camera import Camera, apply_sim3, umeyama
 from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.io.colmap_model import (
     PoseSet,
@@ -38,7 +39,7 @@ from endopipe.stages.io.colmap_model import (
 from endopipe.stages.io.ground_truth import poses_by_frame
 from endopipe.stages.io.transforms_json import read_transforms_json, write_transforms_json
 from endopipe.stages.metrics.depth import pose_metrics, registered_fraction
-from endopipe.stages.poses.config import PosesConfig
+from endopipe.stages.poses.config import MotionConfig, PosesConfig
 from endopipe.stages.poses.estimate import Estimate
 from endopipe.stages.poses.lens import (
     LensRefit,
@@ -48,8 +49,10 @@ from endopipe.stages.poses.lens import (
     reach_note,
     unfold,
 )
+from endopipe.stages.poses.motion import FootageMotion, footage_fps, judge_motion
 from endopipe.stages.poses.summary import PosesSummary
 from endopipe.stages.poses.verdict import (
+    FrameVerdict,
     PoseVerdict,
     evidence_from_reconstruction,
     judge,
@@ -69,7 +72,7 @@ class Poses(Stage):
 
     name = "poses"
     needs = ("ingest",)
-    version = 5  # 5: the summary's lens_refit a record (LensRefit), not a sentence
+    version = 6  # 6: the footage's motion judged first; a still camera gets one fixed pose
     Config = PosesConfig
     Summary = PosesSummary
     View = PosesView
@@ -89,10 +92,16 @@ class Poses(Stage):
             ctx.log(f"ground truth ignored: {e}")  # GT only evaluates SfM: not fatal here
         gt_metric = gt is not None and gt.units == "mm"
 
+        motion = None
+        if cfg.motion.check:  # known poses too: the NeRF stage asks whether the scene moves
+            motion = footage_motion(ingest, cfg.motion)
+            ctx.log(motion.said)
         if cfg.source == "gt":
             est = from_ground_truth(ingest, gt_poses)
         elif cfg.source == "file":
             est = from_file(ingest, cfg)
+        elif motion is not None and motion.camera == "still":
+            est = from_still_camera(ingest, cfg, motion)
         else:
             est = from_colmap(ingest, cfg, ctx)
 
@@ -112,7 +121,10 @@ class Poses(Stage):
             m = pose_metrics(est.c2w, gt_poses)
             errors = {
                 "ate_mm": m["ate"],
-                "ate_percent_of_path": m["ate_percent_of_path"],
+                # a still truth has no path to be a share of
+                "ate_percent_of_path": (
+                    m["ate_percent_of_path"] if np.isfinite(m["ate_percent_of_path"]) else None
+                ),
                 "rre_deg": m["rre_deg"],
                 "gt_path_length_mm": m["gt_path_length"],
                 "others_ate_percent": {
@@ -123,6 +135,7 @@ class Poses(Stage):
             }
 
         verdict = assess(est, cfg, ingest)
+        verdict.motion = motion
         gate(verdict, cfg)
         write_outputs(ctx, ingest, est, cfg.source, metric)
         verdict.write(ctx.out / "verdict.json")
@@ -152,11 +165,17 @@ class Poses(Stage):
             depth_drift=verdict.depth_drift,
             lens_reach=lens_reach(k, ingest),
             fitted_radius_px=est.fitted_radius_px,
+            motion=motion,
         )
         ctx.log(
             f"registered {summary.registered}/{n} frames ({100 * summary.registered_fraction:.0f}%)"
             + (
-                f", ATE {errors['ate_mm']:.3g} mm ({errors['ate_percent_of_path']:.2f}% of path)"
+                f", ATE {errors['ate_mm']:.3g} mm"
+                + (
+                    f" ({errors['ate_percent_of_path']:.2f}% of path)"
+                    if errors["ate_percent_of_path"] is not None
+                    else " (the truth stands still)"
+                )
                 if errors
                 else ""
             )
@@ -197,12 +216,63 @@ def gate(verdict: PoseVerdict, cfg: PosesConfig) -> None:
 def verdict_line(verdict: PoseVerdict) -> str:
     """One log line: the verdict, the mapper kept, why, and what became of the others."""
     doubtful = len(verdict.doubtful())
+    if verdict.motion is not None and verdict.motion.camera == "still":
+        return f"poses {verdict.status}: " + "; ".join(verdict.reasons)
     line = f"poses {verdict.status}: {verdict.mapper} mapper, {doubtful} doubtful frame(s)"
     if verdict.reasons:
         line += "; " + "; ".join(verdict.reasons)
     for mapper, why in verdict.others.items():
         line += f"; {mapper} mapper {why}"
     return line
+
+
+def footage_motion(ingest: IngestView, cfg: MotionConfig) -> FootageMotion:
+    """Whether the camera moves and the scene holds still, from the ingest's frames in order
+    (motion.py); corners are taken only where the ingest's mask allows (not the scope border,
+    a highlight or a tool)."""
+    frames = ingest.frames
+    fps = footage_fps([f.time_s for f in frames], cfg.fps)
+
+    def read(k: int) -> tuple[np.ndarray, np.ndarray | None]:
+        i = frames[k].index
+        return cv2.cvtColor(ingest.image(i), cv2.COLOR_RGB2GRAY), ingest.mask(i)
+
+    return judge_motion(len(frames), read, fps, cfg)
+
+
+def from_still_camera(ingest: IngestView, cfg: PosesConfig, motion: FootageMotion) -> Estimate:
+    """One fixed pose for every frame: a still camera has no path, and SfM would make one of
+    the tissue's motion. Without known intrinsics the lens is assumed (nothing here could
+    measure it) and the summary says so; there are no sparse points (no parallax)."""
+    known = ingest.intrinsics
+    camera = known if known is not None else assumed_camera(ingest, cfg.motion.assumed_hfov_deg)
+    kind = "fixed" if known is not None else "assumed"
+    c2w = {f.index: np.eye(4) for f in ingest.frames}
+    lens = "" if known is not None else (
+        f"; intrinsics assumed ({cfg.motion.assumed_hfov_deg:g} deg horizontal field of view: "
+        "give --intrinsics FILE for the real lens)"
+    )
+    verdict = PoseVerdict(
+        status="ok",
+        reasons=[f"{motion.label}: one fixed pose for all {len(c2w)} frames{lens}", motion.said],
+        mapper="still camera",
+        frames=[FrameVerdict(index=i, status="ok") for i in sorted(c2w)],
+    )
+    return Estimate(
+        camera=camera,
+        colmap_model=camera_to_colmap(camera)[0],
+        c2w=c2w,
+        intrinsics_kind=kind,
+        verdict=verdict,
+        info={"models": 1, "mapper": "still camera"},
+    )
+
+
+def assumed_camera(ingest: IngestView, hfov_deg: float) -> Camera:
+    """A pinhole with the principal point at the centre and the given horizontal field of view."""
+    w, h = ingest.width, ingest.height
+    f = 0.5 * w / np.tan(np.radians(hfov_deg) / 2)
+    return Camera(width=w, height=h, fx=f, fy=f, cx=(w - 1) / 2, cy=(h - 1) / 2)
 
 
 def from_ground_truth(ingest: IngestView, gt_poses: dict[int, np.ndarray] | None) -> Estimate:

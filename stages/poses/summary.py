@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from endopipe.pipeline.stage import Summary
 from endopipe.stages.poses.lens import LensRefit
+from endopipe.stages.poses.motion import FootageMotion
 
 
 class PosesSummary(Summary):
@@ -14,7 +15,7 @@ class PosesSummary(Summary):
     registered_fraction: float
     unregistered: str  # frame ranges, e.g. "3-5, 9"
     camera_model: str  # COLMAP's name of the camera model
-    intrinsics: str  # fixed | refined | estimated
+    intrinsics: str  # fixed | refined | estimated | assumed (a still camera, nothing known)
     fx: float
     fy: float
     cx: float
@@ -56,3 +57,5 @@ class PosesSummary(Summary):
     lens_refit: LensRefit | None = None
     #: an estimated lens: how far from the principal point (px) its features reach
     fitted_radius_px: float | None = None
+    #: whether the camera moved and the scene held still, judged before SfM (None: not judged)
+    motion: FootageMotion | None = None

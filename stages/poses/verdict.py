@@ -20,6 +20,7 @@ from scipy.ndimage import median_filter
 
 from endopipe.stages.camera import rotation_angle_deg, umeyama
 from endopipe.stages.poses.config import VerdictConfig
+from endopipe.stages.poses.motion import FootageMotion
 from endopipe.stages.poses.links import (
     WeakLink,
     cutting_links,
@@ -107,6 +108,7 @@ class PoseVerdict(BaseModel):
     others: dict[str, str] = {}  # mapper not kept -> why
     frames: list[FrameVerdict] = []
     weak_links: list[WeakLink] = []  # cuts few points span (links.py), in frame order
+    motion: FootageMotion | None = None  # the footage's motion, judged before SfM (motion.py)
 
     def doubtful(self) -> list[FrameVerdict]:
         """Registered frames called doubtful (unregistered ones are not: they have no pose)."""
