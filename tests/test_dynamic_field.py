@@ -22,29 +22,24 @@ from tests.tube_scene import (  # noqa: F401 - one_torch_thread is a fixture
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
-def test_space_time_grid_interpolates_in_time_and_equals_the_static_grid_when_constant():
+def test_space_time_grid_starts_static_and_interpolates_its_change_in_time():
     g = VMTimeGrid((6, 7, 8), 2, times=3)
     x = torch.rand(50, 3) * 2 - 1
     static = VMGrid((6, 7, 8), 2)
-    static.planes.data = g.planes.data.clone()
-    rows, off = [], 0
-    for *_, c in VMGrid.PAIRS:
-        rows.append(static.lines.data[off : off + static.res[c]].repeat(3, 1))
-        off += static.res[c]
-    g.lines.data = torch.cat(rows)
-    for t in (-1.0, 0.3, 1.0):
+    static.planes.data, static.lines.data = g.planes.data.clone(), g.lines.data.clone()
+    for t in (-1.0, 0.3, 1.0):  # no change yet: the static grid at every time
         xt = torch.cat([x, torch.full((50, 1), t)], 1)
         assert torch.allclose(g(xt), static(x), atol=1e-6)
-    # Lines that grow linearly with the time node: halfway between two nodes, halfway values.
-    ramp = [
-        torch.arange(3, dtype=torch.float32).repeat_interleave(g.res[c]) for *_, c in g.PAIRS
-    ]
-    g.lines.data = torch.cat(ramp)[:, None].expand_as(g.lines).clone()
+    # A change that grows with the time node: halfway between two nodes, halfway values.
+    ramp = [torch.arange(3.0).repeat_interleave(g.res[c]) for *_, c in g.PAIRS]
+    g.change.data = torch.cat(ramp)[:, None].expand_as(g.change).clone()
     g.planes.data.fill_(1.0)
+    g.lines.data.zero_()
     mid = torch.cat([x, torch.full((50, 1), -0.5)], 1)  # between nodes 0 and 1
     assert torch.allclose(g(mid), torch.full((50, 6), 0.5), atol=1e-5)
     up = g.upsampled((9, 10, 11))
     assert torch.allclose(up(mid), torch.full((50, 6), 0.5), atol=1e-5)
+    assert float(g.change_penalty().detach()) > 0
 
 
 def still_camera_frames(cfg, n: int = 9):
@@ -66,7 +61,7 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
 
 def fit(cfg, frames, prior, box, tmp_path, train, dynamic: bool):
     cfg = cfg.model_copy(deep=True)
-    cfg.field.dynamic = "on" if dynamic else "off"
+    cfg.field.dynamic = dynamic
     cfg.field.time_nodes = 5
     cfg.loss.geo = False
     tr = Trainer(cfg, frames, train, prior, box, tmp_path, log=lambda m: None)

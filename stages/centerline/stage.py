@@ -183,9 +183,9 @@ class Centerline(Stage):
 
 #: A still camera: the scene's typical distance, in the relative units its depth is given in.
 STILL_DEPTH = 1.0
-#: ... and how far rays reach past it (a laparoscope's view of tissue spans about 0.5-2x the
-#: typical distance).
-STILL_REACH = 4.0
+#: ... and how far rays reach (a laparoscope's view of tissue spans about 0.5-2x the typical
+#: distance; farther, the grid's cells grow with the box).
+STILL_REACH = 2.5
 
 
 def no_parallax(ctx: StageContext[CenterlineConfig], centres: np.ndarray, units: str):

@@ -18,6 +18,13 @@ class MeshConfig(StageConfig):
     voxels_per_radius: float = Field(
         64.0, gt=0, description="TSDF voxel size = lumen radius (the prior's) / this."
     )
+    frame: int | None = Field(
+        None,
+        ge=0,
+        description="A scene that moves (a dynamic field): the frame whose surface is meshed "
+        "(tsdf: that frame's depth alone; fusing every time would average the motion). None: "
+        "the first registered frame.",
+    )
     voxel_size: float | None = Field(
         None, gt=0, description="TSDF voxel size in cameras.json units; overrides the above."
     )

@@ -37,12 +37,12 @@ def iter_depth_frames(
 ) -> Iterator[DepthFrame]:
     """The registered frames that have a depth map, with colour from `image(index)` (RGB,
     resized to the depth map's grid), at the poses `c2w` the depth maps were rendered at
-    (NerfView.c2w; default: cameras.json's)."""
+    (NerfView.c2w; default: cameras.json's); frames `c2w` leaves out are skipped."""
     c2w = poses.c2w if c2w is None else c2w
     import cv2
 
     for i in poses.registered:
-        if not depth.has_depth(i):
+        if not depth.has_depth(i) or i not in c2w:
             continue
         d = valid_depth(depth, i, min_opacity)
         rgb = None

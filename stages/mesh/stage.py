@@ -75,7 +75,7 @@ class Mesh(Stage):
 
     name = "mesh"
     needs = ("ingest", "poses", "centerline", "nerf", "depth")
-    version = 2
+    version = 3  # 3: a dynamic field's mesh is one frame's surface
     Config = MeshConfig
     Summary = MeshSummary
     View = MeshView
@@ -95,6 +95,12 @@ class Mesh(Stage):
         t0 = time.perf_counter()
         if cfg.method == "tsdf":
             c2w = nerf.c2w(poses)  # the poses the depth maps were rendered at
+            if nerf.summary.time_nodes is not None:  # a scene that moves: one time's surface
+                frame = poses.registered[0] if cfg.frame is None else cfg.frame
+                if frame not in c2w:
+                    raise StageFailed(f"mesh.frame {frame} has no pose; pick a registered frame")
+                c2w = {frame: c2w[frame]}
+                ctx.log(f"a scene that moves: the mesh is frame {frame}'s surface (mesh.frame)")
             raw, info = fuse_depth(depth, poses, cfg, radius, ingest.image, c2w)
         else:
             raw, info = nerf_marching_cubes(nerf, depth, poses, prior, cfg)

@@ -127,12 +127,19 @@ class FieldConfig(_Section):
     positional: PositionalConfig = Field(
         default_factory=PositionalConfig, description="Positional-encoding MLP."
     )
-    dynamic: Literal["auto", "off", "on"] = Field(
+    dynamic: bool | Literal["auto"] = Field(
         "auto",
         description="A field that changes with time (HexPlane's space-time planes on the "
         "TensoRF grid): every frame is fitted and rendered at its own time. auto: on when the "
         "poses stage found the scene moving under a still camera (tissue pulled, cut or "
-        "breathing; instruments), off for a rigid scene.",
+        "breathing; instruments), false for a rigid scene.",
+    )
+    change_weight: float = Field(
+        0.001,
+        ge=0,
+        description="A dynamic field: weight of the penalty on its change's steps between time "
+        "nodes (the scene changes slowly). 0.01 and more kept a tint that changes over a clip "
+        "out of the field.",
     )
     time_nodes: int = Field(
         0,

@@ -66,7 +66,7 @@ class RadianceField(nn.Module):
     @property
     def dynamic(self) -> bool:
         """Whether points carry a fourth coordinate, the time (see `VMTimeGrid`)."""
-        return self.cfg.dynamic == "on"
+        return self.cfg.dynamic is True
 
     @property
     def cell(self) -> float:
@@ -149,7 +149,7 @@ class TensorfField(RadianceField):
         t = cfg.tensorf
         self.extent = tuple(float(e) for e in box_extent)
         res = self._res(t.res_init)
-        if cfg.dynamic == "on":
+        if cfg.dynamic is True:
             self.density_grid = VMTimeGrid(res, t.density_components, cfg.time_nodes, 0.1)
             self.app_grid = VMTimeGrid(res, t.appearance_components, cfg.time_nodes, 0.1)
         else:
@@ -227,7 +227,13 @@ class TensorfField(RadianceField):
 
     def extra_loss(self) -> torch.Tensor | None:
         w = self.cfg.tensorf.tv_weight
-        return w * self.density_grid.total_variation() if w > 0 else None
+        loss = w * self.density_grid.total_variation() if w > 0 else None
+        if self.dynamic and self.cfg.change_weight > 0:
+            change = self.cfg.change_weight * (
+                self.density_grid.change_penalty() + self.app_grid.change_penalty()
+            )
+            loss = change if loss is None else loss + change
+        return loss
 
 
 class HashgridField(RadianceField):
@@ -320,9 +326,9 @@ def laplace_density(d: torch.Tensor, beta: torch.Tensor) -> torch.Tensor:
 
 
 def make_field(cfg: FieldConfig, box_extent: tuple[float, float, float]) -> RadianceField:
-    if cfg.dynamic == "on" and (cfg.encoding != "tensorf" or cfg.geometry == "sdf"):
+    if cfg.dynamic is True and (cfg.encoding != "tensorf" or cfg.geometry == "sdf"):
         raise ConfigError(
-            "nerf.field.dynamic=on needs the tensorf encoding and density geometry; set "
+            "nerf.field.dynamic=true needs the tensorf encoding and density geometry; set "
             "nerf.field.encoding=tensorf and nerf.field.geometry=density"
         )
     if cfg.encoding == "tensorf":

@@ -59,6 +59,12 @@ def support_line(s: DepthSummary, dm: DepthMetrics | None) -> str | None:
         if a is not None and b is not None:
             name = "SSI-AbsRel" if dm.gt_kind == "relative" else "AbsRel"
             line += f"; {name} {a:.4f} where seen again, {b:.4f} on the rest"
+    if s.one_viewpoint:
+        line = (
+            "The camera stood still: no pixel was seen from two places. Every depth here is "
+            "relative (from shading, smoothness and the field's fit over time, in units where "
+            "the typical distance is 1) and weaker than depth measured by parallax. " + line
+        )
     return line
 
 
