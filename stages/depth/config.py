@@ -15,6 +15,13 @@ class DepthConfig(StageConfig):
         description="baked: ray-cast an iso-surface baked once from the field's density (fast); "
         "field: volume-render the trained field at every sample (exact expected depth, slow).",
     )
+    dynamic_samples: tuple[int, int] = Field(
+        (16, 8),
+        description="A field that changes with time has no one surface to bake, so every frame "
+        "is volume-rendered: its coarse and fine samples per ray (the nerf stage renders "
+        "held-out frames with 32, 16). EndoNeRF's cutting clip: 1.2 s a frame against 3.3, "
+        "depth 1.6% apart (median).",
+    )
     device: Literal["auto", "cpu", "cuda"] = Field(
         "auto",
         description="Where the field is evaluated (baking, volume rendering): auto is CUDA when "

@@ -71,10 +71,20 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, ner
     if cfg.renderer == "field" or model.field.dynamic:
         # A dynamic field has no one surface to bake: each frame renders at its own time.
         position = {f: p for p, f in enumerate(getattr(model, "meta", {}).get("frame_ids", []))}
+        if model.field.dynamic:
+            coarse, fine = cfg.dynamic_samples
+            sampling = model.cfg.sampling.model_copy(
+                update={"render_coarse": coarse, "render_fine": fine}
+            )
+            model.cfg = model.cfg.model_copy(update={"sampling": sampling})
 
         def render_field(k, c2w, i, colour):
             with model.at_frame(position.get(i)):
-                out = render_image(model, prior, k, c2w, colour=colour)
+                # a dynamic field's colour: the nerf stage's render (with its full samples)
+                own = colour and model.field.dynamic
+                out = render_image(model, prior, k, c2w, colour=colour and not own)
+                if own:
+                    out["rgb"] = colour_of(k, c2w, i)
             found, out["hazy"] = surface_found(
                 out["opacity"], out["spread"], cfg.min_opacity, cfg.max_spread
             )

@@ -1,0 +1,57 @@
+"""A still camera over a wall pulled by a tool, run end to end as a user would (the video and
+its intrinsics, no flags): the footage is called what it is, the camera gets one pose, the field
+changes with time, and its depth (relative, one viewpoint) still follows the truth better than
+the brightness guess."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from endopipe.cli import main
+from endopipe.stages.depth.view import DepthView
+from endopipe.stages.nerf.view import NerfView
+from endopipe.stages.poses.view import PosesView
+from endopipe.synth import SynthConfig, generate_case
+
+STEPS = ["--set", "nerf.train.steps=400", "--set", "nerf.train.time_budget_s=null"]
+STEPS += ["--set", "nerf.train.threads=1", "--until", "depth"]
+
+
+@pytest.fixture(scope="module")
+def still_case(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    src = tmp_path_factory.mktemp("still_input") / "pull"
+    cfg = SynthConfig(
+        shape="cavity", deform="pull", still_camera=True, frames=24, width=160, height=128, seed=7
+    )
+    generate_case(src, cfg)
+    wd = tmp_path_factory.mktemp("still_wd")
+    assert main(["run", str(src), "--workdir", str(wd), "--quiet", *STEPS]) == 0
+    return wd / "pull"
+
+
+def test_a_still_camera_over_a_pulled_wall_gets_one_pose_and_says_so(still_case: Path):
+    poses = PosesView(still_case / "02_poses")
+    motion = poses.summary.motion
+    assert motion is not None and motion.label == "camera still, tissue moving"
+    assert poses.summary.mapper == "still camera"
+    assert len(poses.registered) == 24
+    first = poses.c2w[poses.registered[0]]
+    assert all(np.array_equal(poses.c2w[i], first) for i in poses.registered)
+    verdict = poses.verdict()
+    assert verdict is not None and verdict.reasons[0].startswith("camera still, tissue moving")
+
+
+def test_its_field_changes_with_time_and_its_depth_is_one_viewpoints(still_case: Path):
+    assert NerfView(still_case / "04_nerf").summary.time_nodes is not None
+    depth = DepthView(still_case / "05_depth")
+    assert depth.summary.one_viewpoint
+    assert depth.summary.seen_again_share == 0.0  # no pixel was seen from two places
+    m = depth.metrics()
+    assert m is not None and m.median_scaled is not None and m.baselines is not None
+    ours = m.median_scaled.abs_rel
+    guess = m.baselines["brightness"].median_scaled.abs_rel
+    assert ours < 0.9 * guess, (ours, guess)
+    assert m.neighbour_average and m.neighbour_average["psnr"] > 0
