@@ -7,11 +7,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 from endopipe.cli import main
 from endopipe.stages.depth.view import DepthView
+from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
 from endopipe.synth import SynthConfig, generate_case
@@ -44,14 +46,26 @@ def test_a_still_camera_over_a_pulled_wall_gets_one_pose_and_says_so(still_case:
     assert verdict is not None and verdict.reasons[0].startswith("camera still, tissue moving")
 
 
+def test_the_tool_masks_leave_the_usable_pixels(still_case: Path):
+    ingest = IngestView(still_case / "01_ingest")
+    s = ingest.summary
+    assert s.tool_masks is not None and 0.0 < s.mean_tool_fraction <= s.max_tool_fraction < 0.5
+    frame = ingest.frames[-1]
+    tool = cv2.imread(
+        str(Path(s.tool_masks) / f"{frame.source_index:06d}.png"), cv2.IMREAD_GRAYSCALE
+    )
+    tool = cv2.resize(tool, (ingest.width, ingest.height), interpolation=cv2.INTER_NEAREST)
+    assert (ingest.mask(frame.index)[tool > 127] == 0).all()
+
+
 def test_its_field_changes_with_time_and_its_depth_is_one_viewpoints(still_case: Path):
     assert NerfView(still_case / "04_nerf").summary.time_nodes is not None
     depth = DepthView(still_case / "05_depth")
     assert depth.summary.one_viewpoint
     assert depth.summary.seen_again_share == 0.0  # no pixel was seen from two places
-    m = depth.metrics()
+    m = depth.metrics
     assert m is not None and m.median_scaled is not None and m.baselines is not None
     ours = m.median_scaled.abs_rel
     guess = m.baselines["brightness"].median_scaled.abs_rel
-    assert ours < 0.9 * guess, (ours, guess)
+    assert ours < 0.8 * guess, (ours, guess)  # measured 0.082 against 0.119
     assert m.neighbour_average and m.neighbour_average["psnr"] > 0

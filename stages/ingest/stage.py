@@ -15,6 +15,7 @@ from endopipe.stages.ingest.config import IngestConfig
 from endopipe.stages.ingest.masks import combine, fov_mask_for_sequence, specular_mask
 from endopipe.stages.ingest.selection import Selection, select_frames
 from endopipe.stages.ingest.summary import IngestSummary
+from endopipe.stages.ingest.tools import read_tool_mask, tool_masks_of
 from endopipe.stages.ingest.view import (
     FOV_FILE,
     FRAMES_FILE,
@@ -35,7 +36,7 @@ class Ingest(Stage):
 
     name = "ingest"
     needs = ()
-    version = 2  # 2: max_frames stops decoding; read, not_read and ground-truth coverage
+    version = 3  # 3: a case folder's tool masks (masks/, 255 = tool) leave the usable mask
     Config = IngestConfig
     Summary = IngestSummary
     View = IngestView
@@ -54,14 +55,20 @@ class Ingest(Stage):
         (ctx.out / "frames").mkdir()
         (ctx.out / "masks").mkdir()
         cv2.imwrite(str(ctx.out / FOV_FILE), fov)
-        entries, spec_fracs = [], []
+        entries, spec_fracs, tool_fracs = [], [], []
+        tools = tool_masks_of(Path(ctx.case.input))
         with ctx.progress("masks", total=len(images)) as advance:
             for i, (frame, rgb) in enumerate(zip(frames, images, strict=True)):
                 spec = specular_mask(rgb, cfg.specular, fov)
                 spec_fracs.append(float((spec > 0).mean()))
                 name = f"{i:06d}.png"
                 cv2.imwrite(str(ctx.out / "frames" / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-                cv2.imwrite(str(ctx.out / "masks" / name), combine(fov, spec))
+                usable = combine(fov, spec)
+                tool = read_tool_mask(tools, frame.source_index, size) if tools else None
+                if tool is not None:
+                    usable[tool] = 0
+                tool_fracs.append(float(tool.mean()) if tool is not None else 0.0)
+                cv2.imwrite(str(ctx.out / "masks" / name), usable)
                 entries.append(
                     FrameEntry(
                         index=i,
@@ -92,6 +99,12 @@ class Ingest(Stage):
         ctx.log(f"{kept_line(len(frames), selection, kind)}; field of view: {fov_shape}")
         if source.kind == "case" and source.intrinsics is None:
             ctx.log("the case has no intrinsics.json: COLMAP estimates the camera")
+        if tools is not None:
+            ctx.log(
+                f"tool masks: {sum(f > 0 for f in tool_fracs)} of {len(frames)} frames from "
+                f"{tools} (255 = tool), {np.mean(tool_fracs):.1%} of the pixels on average, "
+                f"{max(tool_fracs):.1%} at most: left out of the photometric loss"
+            )
         gt = ground_truth_coverage(ctx, source, frames, selection.total)
         return IngestSummary(
             kind=source.kind,
@@ -105,6 +118,9 @@ class Ingest(Stage):
             fov_shape=fov_shape,
             fov_fraction=float((fov > 0).mean()),
             mean_specular_fraction=float(np.mean(spec_fracs)),
+            tool_masks=str(tools) if tools is not None else None,
+            mean_tool_fraction=float(np.mean(tool_fracs)) if tools is not None else None,
+            max_tool_fraction=float(max(tool_fracs)) if tools is not None else None,
             has_intrinsics=intrinsics is not None,
             has_ground_truth=source.gt_dir is not None,
             gt_frames_without_depth=gt.frames_without_depth,

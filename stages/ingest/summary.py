@@ -18,6 +18,11 @@ class IngestSummary(Summary):
     fov_shape: str
     fov_fraction: float
     mean_specular_fraction: float
+    #: tool masks read with the input (a case folder's masks/, 255 = tool): where from, and the
+    #: share of the pixels they mark, mean and largest over the frames (None: none given)
+    tool_masks: str | None = None
+    mean_tool_fraction: float | None = None
+    max_tool_fraction: float | None = None
     has_intrinsics: bool
     has_ground_truth: bool
     gt_frames_without_depth: int = 0  # kept frames the ground truth has no depth for

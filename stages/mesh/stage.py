@@ -95,7 +95,7 @@ class Mesh(Stage):
         t0 = time.perf_counter()
         if cfg.method == "tsdf":
             c2w = nerf.c2w(poses)  # the poses the depth maps were rendered at
-            if nerf.summary.time_nodes is not None:  # a scene that moves: one time's surface
+            if nerf.dynamic:  # a scene that moves: one time's surface
                 frame = poses.registered[0] if cfg.frame is None else cfg.frame
                 if frame not in c2w:
                     raise StageFailed(f"mesh.frame {frame} has no pose; pick a registered frame")
@@ -133,7 +133,12 @@ class Mesh(Stage):
         save_mesh(ctx.out, mesh, obj=cfg.export_obj)
 
         evaluation: dict[str, Any] = {"evaluated": False}
-        if cfg.evaluate:
+        centres = poses.centres()
+        no_path = len(centres) > 1 and float(np.ptp(centres, axis=0).max()) == 0.0
+        if no_path and not poses.metric:
+            # no path to align on the truth's: the relative units have no scale to compare
+            evaluation["reason"] = "a still camera's mesh is in relative units (no scale)"
+        elif cfg.evaluate:
             gt = case_ground_truth(ctx.case.gt_dir or ingest.gt_dir)
             gt_mesh = ground_truth_mesh(gt)
             if gt_mesh is not None:

@@ -226,7 +226,9 @@ class VMTimeGrid(VMGrid):
         change, off = [], 0
         for *_, c in self.PAIRS:
             rc = self.res[c]
-            ch = self.change[off : off + self.times * rc].T.reshape(1, self.channels, self.times, rc)
+            ch = self.change[off : off + self.times * rc].T.reshape(
+                1, self.channels, self.times, rc
+            )
             ch = F.interpolate(ch, size=(self.times, res[c]), mode="bilinear", align_corners=True)
             change.append(ch.reshape(self.channels, -1).T)
             off += self.times * rc

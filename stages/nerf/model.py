@@ -241,7 +241,9 @@ class NerfModel(nn.Module):
         if self.field.dynamic and frame is not None:
             self._time = self.frame_time[frame]
         try:
-            return self._render_rays(o, d, near, far, frame, jitter, gen, colour, normals, shading_mix)
+            return self._render_rays(
+                o, d, near, far, frame, jitter, gen, colour, normals, shading_mix
+            )
         finally:
             self._time = before
 

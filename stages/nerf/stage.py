@@ -224,14 +224,12 @@ def choose_geometry(cfg: NerfConfig, prior, log) -> NerfConfig:
 def still_camera_settings(cfg: NerfConfig, poses, log) -> NerfConfig:
     """A still camera's field: its grid unwarped (when `field.warp` is auto) and its shading
     without n.l (why: below)."""
-    motion = poses.summary.motion
+    motion = poses.motion
     if motion is not None and motion.camera == "still" and cfg.field.warp == "auto":
         # The warp keeps fine cells around the camera path; a still camera's path is a point
         # and its scene lies a typical distance away, in the coarse cells (held-out 15.9 dB
         # warped on a still da Vinci clip at 600 steps).
-        cfg = cfg.model_copy(
-            update={"field": cfg.field.model_copy(update={"warp": False})}
-        )
+        cfg = cfg.model_copy(update={"field": cfg.field.model_copy(update={"warp": False})})
         log("grid warp off: the camera stands still, its scene lies away from it")
     if motion is not None and motion.camera == "still" and cfg.shading.normal_term:
         # Seen from one place, a surface's tilt is not measured: n.l lit the field's noisy
@@ -248,7 +246,7 @@ def choose_dynamic(cfg: NerfConfig, poses, n_frames: int, log) -> NerfConfig:
     moving under a still camera, the static field otherwise; the log says which and why.
     A dynamic field's frames are not one scene at different places, so the multi-frame depth
     consistency (which warps one frame's depth into another's) is off."""
-    motion = poses.summary.motion
+    motion = poses.motion
     dynamic = cfg.field.dynamic
     if dynamic == "auto":
         moving = motion is not None and motion.scene == "moving"

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from pydantic import BaseModel
 
+from endopipe.pipeline.cache import Manifest
 from endopipe.pipeline.stage import read_summary
 from endopipe.stages.nerf.files import (
     HELDOUT_PLOT_FILE,
@@ -66,6 +67,14 @@ class NerfView:
         """The stage's summary in its manifest, as the model the stage wrote (SummaryMismatch
         when the folder was written with other fields)."""
         return read_summary(self.folder, NerfSummary)
+
+    @property
+    def dynamic(self) -> bool:
+        """Whether the field changes with time (the summary's `time_nodes`). A folder with no
+        manifest (one put together by hand, or no NeRF at all) holds no dynamic field."""
+        if Manifest.load(self.folder) is None:
+            return False
+        return self.summary.time_nodes is not None
 
     def model(self, device: str = "cpu") -> NerfModel:
         """The trained NerfModel, in eval mode; its `meta` says which frames were held out."""

@@ -73,7 +73,6 @@ class MotionConfig(BaseModel):
     )
 
 
-
 class VerdictConfig(BaseModel):
     """When a frame or a sequence is called doubtful."""
 

@@ -248,9 +248,13 @@ def from_still_camera(ingest: IngestView, cfg: PosesConfig, motion: FootageMotio
     camera = known if known is not None else assumed_camera(ingest, cfg.motion.assumed_hfov_deg)
     kind = "fixed" if known is not None else "assumed"
     c2w = {f.index: np.eye(4) for f in ingest.frames}
-    lens = "" if known is not None else (
-        f"; intrinsics assumed ({cfg.motion.assumed_hfov_deg:g} deg horizontal field of view: "
-        "give --intrinsics FILE for the real lens)"
+    lens = (
+        ""
+        if known is not None
+        else (
+            f"; intrinsics assumed ({cfg.motion.assumed_hfov_deg:g} deg horizontal field of view: "
+            "give --intrinsics FILE for the real lens)"
+        )
     )
     verdict = PoseVerdict(
         status="ok",

@@ -20,7 +20,6 @@ from scipy.ndimage import median_filter
 
 from endopipe.stages.camera import rotation_angle_deg, umeyama
 from endopipe.stages.poses.config import VerdictConfig
-from endopipe.stages.poses.motion import FootageMotion
 from endopipe.stages.poses.links import (
     WeakLink,
     cutting_links,
@@ -28,6 +27,7 @@ from endopipe.stages.poses.links import (
     stretches,
     weak_links,
 )
+from endopipe.stages.poses.motion import FootageMotion
 
 Status = Literal["ok", "doubtful", "not assessed"]
 

@@ -10,10 +10,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 from pydantic import BaseModel, Field, model_validator
 
+from endopipe.pipeline.cache import Manifest
 from endopipe.pipeline.stage import read_summary
 from endopipe.stages.camera import Camera
 from endopipe.stages.io.colmap_model import camera_from_colmap, camera_to_colmap
 from endopipe.stages.poses.lens import past_fitted_radius
+from endopipe.stages.poses.motion import FootageMotion
 from endopipe.stages.poses.summary import PosesSummary
 from endopipe.stages.poses.verdict import PoseVerdict
 
@@ -144,6 +146,14 @@ class PosesView:
         """The stage's summary in its manifest, as the model the stage wrote (SummaryMismatch
         when the folder was written with other fields)."""
         return read_summary(self.folder, PosesSummary)
+
+    @property
+    def motion(self) -> FootageMotion | None:
+        """The footage's motion as the poses stage judged it (docs/formats.md). None: not
+        judged, or a folder put together by hand, with no manifest."""
+        if Manifest.load(self.folder) is None:
+            return None
+        return self.summary.motion
 
     @property
     def registered(self) -> list[int]:
