@@ -37,14 +37,10 @@ from endopipe.pipeline.errors import EndopipeError
 from endopipe.pipeline.stage import write_json
 from endopipe.stages.camera import Camera, image_directions, lens_valid_mask
 
-ENDONERF_AXES = ("llff", "opengl", "opencv")
-#: For each `axes` choice: which OpenCV camera axis (0 = x, 1 = y, 2 = z) and sign fill the
-#: three rotation columns of an LLFF 3x5 matrix.
-LLFF_COLUMNS: dict[str, tuple[tuple[int, float], ...]] = {
-    "llff": ((1, 1.0), (0, 1.0), (2, -1.0)),  # down, right, back
-    "opengl": ((0, 1.0), (1, -1.0), (2, -1.0)),  # right, up, back
-    "opencv": ((0, 1.0), (1, 1.0), (2, 1.0)),  # right, down, forward
-}
+# The axes are the reader's (stages/io/endonerf.py): one definition for writing and reading.
+from endopipe.stages.io.endonerf import ENDONERF_AXES as ENDONERF_AXES
+from endopipe.stages.io.endonerf import LLFF_COLUMNS, c2w_from_llff
+
 AXES_DOC = {
     "llff": "rotation columns = camera (down, right, back) in world coordinates (LLFF)",
     "opengl": "rotation columns = camera (right, up, back) in world coordinates (OpenGL)",
@@ -63,15 +59,6 @@ def llff_matrix(c2w: np.ndarray, hwf: tuple[float, float, float], axes: str = "l
     m[:, 3] = c2w[:3, 3]
     m[:, 4] = hwf
     return m
-
-
-def c2w_from_llff(m: np.ndarray, axes: str = "llff") -> np.ndarray:
-    """LLFF's 3x5 (rotation columns in the order of `axes`) back to an OpenCV c2w."""
-    c2w = np.eye(4)
-    for col, (axis, sign) in enumerate(LLFF_COLUMNS[axes]):
-        c2w[:3, axis] = sign * m[:, col]
-    c2w[:3, 3] = m[:, 3]
-    return c2w
 
 
 def poses_bounds(

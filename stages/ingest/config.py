@@ -121,6 +121,53 @@ class SpecularConfig(BaseModel):
     )
 
 
+class ToolsConfig(BaseModel):
+    """Surgical tools in view: masks given with the input, or found in the frames."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    polarity: Literal["auto", "white_is_tool", "black_is_tool"] = Field(
+        "auto",
+        description="How given tool masks (masks/) are read. auto: 255 = tool (EndoNeRF's "
+        "convention), and a mask marking over 60% of its frame as tool is refused as the other "
+        "polarity; white_is_tool / black_is_tool: read as said, never refused.",
+    )
+    detect: Literal["auto", "off"] = Field(
+        "auto",
+        description="auto: find tools when the input gives no masks: grey metal (low "
+        "saturation, not dark, not warm) in large regions that reach the border of the view "
+        "(0.0% of the pixels marked on four real clips without tools, the da Vinci instrument "
+        "found on EndoNeRF's cutting clip: docs/experiments.md); off: never.",
+    )
+    max_saturation: int = Field(
+        60,
+        ge=0,
+        le=255,
+        description="Detection: HSV saturation (0..255) at or under which a pixel may be metal.",
+    )
+    min_value: int = Field(
+        60, ge=0, le=255, description="Detection: HSV value under which a pixel is too dark."
+    )
+    min_area: float = Field(
+        0.01,
+        ge=0,
+        le=1,
+        description="Detection: smallest region kept as a tool, a share of the frame.",
+    )
+    max_share: float = Field(
+        0.4,
+        gt=0,
+        le=1,
+        description="Detection: what would cover more than this share of the field of view is "
+        "the scene (a grey phantom, a blank frame), not a tool: nothing is marked.",
+    )
+    min_blue_minus_red: float = Field(
+        0.0,
+        description="Detection: a region's mean blue minus red (0..255) must reach this: metal "
+        "is neutral or cool, pale tissue warm.",
+    )
+
+
 class KeyframeConfig(BaseModel):
     """When and how ingest keeps frames by content instead of keeping every usable one."""
 
@@ -219,5 +266,9 @@ class IngestConfig(StageConfig):
     )
     specular: SpecularConfig = Field(
         default_factory=SpecularConfig, description="Specular-highlight mask."
+    )
+    tools: ToolsConfig = Field(
+        default_factory=ToolsConfig,
+        description="Surgical tools: their pixels leave the usable mask (the photometric loss).",
     )
     contact_sheet_frames: int = Field(16, ge=1, description="Frames shown in contact_sheet.png.")

@@ -15,13 +15,14 @@ from endopipe.stages.ingest.config import IngestConfig
 from endopipe.stages.ingest.masks import combine, fov_mask_for_sequence, specular_mask
 from endopipe.stages.ingest.selection import Selection, select_frames
 from endopipe.stages.ingest.summary import IngestSummary
-from endopipe.stages.ingest.tools import read_tool_mask, tool_masks_of
+from endopipe.stages.ingest.tool_frames import FrameTools
 from endopipe.stages.ingest.view import (
     FOV_FILE,
     FRAMES_FILE,
     FrameEntry,
     FramesFile,
     IngestView,
+    KnownPoses,
     SourceInfo,
 )
 from endopipe.stages.io.ground_truth import Coverage, coverage
@@ -36,7 +37,7 @@ class Ingest(Stage):
 
     name = "ingest"
     needs = ()
-    version = 3  # 3: a case folder's tool masks (masks/, 255 = tool) leave the usable mask
+    version = 4  # 4: tool masks (given or detected) in tools/, their polarity; known poses
     Config = IngestConfig
     Summary = IngestSummary
     View = IngestView
@@ -56,7 +57,9 @@ class Ingest(Stage):
         (ctx.out / "masks").mkdir()
         cv2.imwrite(str(ctx.out / FOV_FILE), fov)
         entries, spec_fracs, tool_fracs = [], [], []
-        tools = tool_masks_of(Path(ctx.case.input))
+        tools = FrameTools(source.tool_masks, cfg.tools)
+        if tools.active:
+            (ctx.out / "tools").mkdir()
         with ctx.progress("masks", total=len(images)) as advance:
             for i, (frame, rgb) in enumerate(zip(frames, images, strict=True)):
                 spec = specular_mask(rgb, cfg.specular, fov)
@@ -64,10 +67,11 @@ class Ingest(Stage):
                 name = f"{i:06d}.png"
                 cv2.imwrite(str(ctx.out / "frames" / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
                 usable = combine(fov, spec)
-                tool = read_tool_mask(tools, frame.source_index, size) if tools else None
+                tool = tools.of(frame.source_index, rgb, fov, size)
                 if tool is not None:
                     usable[tool] = 0
-                tool_fracs.append(float(tool.mean()) if tool is not None else 0.0)
+                    tool_fracs.append(float(tool.mean()))
+                    cv2.imwrite(str(ctx.out / "tools" / name), tool.astype(np.uint8) * 255)
                 cv2.imwrite(str(ctx.out / "masks" / name), usable)
                 entries.append(
                     FrameEntry(
@@ -76,6 +80,8 @@ class Ingest(Stage):
                         time_s=frame.time_s,
                         file=f"frames/{name}",
                         mask=f"masks/{name}",
+                        tool=f"tools/{name}" if tool is not None else None,
+                        tool_share=float(tool.mean()) if tool is not None else None,
                     )
                 )
                 advance()
@@ -89,6 +95,8 @@ class Ingest(Stage):
             gt_dir=str(source.gt_dir) if source.gt_dir else None,
             fov_shape=fov_shape,
             dropped=dropped,
+            tools=tools.said if tools.active else None,
+            known_poses=known_poses(source, entries),
             dropped_frames=selection.dropped_frames or {},
         )
         write_json(ctx.out / FRAMES_FILE, frames_file.model_dump(mode="json"))
@@ -99,12 +107,11 @@ class Ingest(Stage):
         ctx.log(f"{kept_line(len(frames), selection, kind)}; field of view: {fov_shape}")
         if source.kind == "case" and source.intrinsics is None:
             ctx.log("the case has no intrinsics.json: COLMAP estimates the camera")
-        if tools is not None:
-            ctx.log(
-                f"tool masks: {sum(f > 0 for f in tool_fracs)} of {len(frames)} frames from "
-                f"{tools} (255 = tool), {np.mean(tool_fracs):.1%} of the pixels on average, "
-                f"{max(tool_fracs):.1%} at most: left out of the photometric loss"
-            )
+        if tools.active:
+            ctx.log(tools.line(tool_fracs))
+        poses_said = known_poses_said(frames_file.known_poses)
+        if poses_said:
+            ctx.log(poses_said)
         gt = ground_truth_coverage(ctx, source, frames, selection.total)
         return IngestSummary(
             kind=source.kind,
@@ -118,9 +125,12 @@ class Ingest(Stage):
             fov_shape=fov_shape,
             fov_fraction=float((fov > 0).mean()),
             mean_specular_fraction=float(np.mean(spec_fracs)),
-            tool_masks=str(tools) if tools is not None else None,
-            mean_tool_fraction=float(np.mean(tool_fracs)) if tools is not None else None,
-            max_tool_fraction=float(max(tool_fracs)) if tools is not None else None,
+            tool_masks=tools.where if tools.active else None,
+            tool_polarity=tools.polarity if tools.active else None,
+            frames_with_tools=sum(f > 0 for f in tool_fracs) if tools.active else None,
+            mean_tool_fraction=float(np.mean(tool_fracs)) if tools.active else None,
+            max_tool_fraction=float(max(tool_fracs)) if tools.active else None,
+            known_poses=poses_said,
             has_intrinsics=intrinsics is not None,
             has_ground_truth=source.gt_dir is not None,
             gt_frames_without_depth=gt.frames_without_depth,
@@ -142,6 +152,25 @@ def ground_truth_coverage(
     for line in found.warnings:
         warn(ctx, line)
     return found
+
+
+def known_poses(source: InputSource, entries: list[FrameEntry]) -> KnownPoses | None:
+    """The input's own poses (EndoNeRF's) for the kept frames; never ground truth."""
+    poses = source.known_poses
+    if poses is None:
+        return None
+    c2w = {e.index: poses[e.source_index].tolist() for e in entries if e.source_index < len(poses)}
+    return KnownPoses(source=source.known_poses_from or str(source.path), c2w=c2w)
+
+
+def known_poses_said(known: KnownPoses | None) -> str | None:
+    """'known poses: one for all 156 frames (a still camera), from ...; not ground truth'."""
+    if known is None or not known.c2w:
+        return None
+    mats = np.array(list(known.c2w.values()))
+    same = np.abs(mats - mats[0]).max() < 1e-9
+    what = f"one for all {len(mats)} frames (a still camera)" if same else f"{len(mats)} frames"
+    return f"known poses: {what}, from {known.source}; not ground truth, not scored"
 
 
 def kept_line(kept: int, selection: Selection, kind: str = "frames") -> str:

@@ -18,11 +18,16 @@ class IngestSummary(Summary):
     fov_shape: str
     fov_fraction: float
     mean_specular_fraction: float
-    #: tool masks read with the input (a case folder's masks/, 255 = tool): where from, and the
-    #: share of the pixels they mark, mean and largest over the frames (None: none given)
+    #: tool masks: read with the input (a case folder's or EndoNeRF's masks/), or detected;
+    #: where from, the polarity read ("255 = tool", "0 = tool", "detected"), and the share of
+    #: the pixels they mark, mean and largest over the frames (None: no tool masks)
     tool_masks: str | None = None
+    tool_polarity: str | None = None
+    frames_with_tools: int | None = None
     mean_tool_fraction: float | None = None
     max_tool_fraction: float | None = None
+    #: poses the input came with that are not ground truth (EndoNeRF's): what they say
+    known_poses: str | None = None
     has_intrinsics: bool
     has_ground_truth: bool
     gt_frames_without_depth: int = 0  # kept frames the ground truth has no depth for

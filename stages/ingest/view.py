@@ -36,11 +36,23 @@ class FrameEntry(BaseModel):
     time_s: float | None = Field(None, description="time in the video (None for images)")
     file: str = Field(description="the frame, relative to 01_ingest")
     mask: str = Field(description="its mask (255 = use), relative to 01_ingest")
+    tool: str | None = Field(
+        None, description="its tool mask (255 = tool), relative to 01_ingest; None: no tool masks"
+    )
+    tool_share: float | None = Field(None, description="the share of the frame on a tool")
 
 
 class SourceInfo(BaseModel):
     path: str
     kind: str
+
+
+class KnownPoses(BaseModel):
+    """Poses the input came with that are not ground truth (EndoNeRF's poses_bounds.npy): kept
+    for the stages that may start from them, never scored against."""
+
+    source: str = Field(description="where they came from")
+    c2w: dict[int, list[list[float]]] = Field(description="OpenCV c2w 4x4 by frame index")
 
 
 class FramesFile(BaseModel):
@@ -59,6 +71,12 @@ class FramesFile(BaseModel):
         description="A recording's timeline: the source_index of each frame not kept, by reason "
         "(frames kept by content only).",
     )
+    tools: str | None = Field(
+        None,
+        description="Where the tool masks came from and how they were read ('masks/ (255 = "
+        "tool)', 'detected'); None: no tool masks.",
+    )
+    known_poses: KnownPoses | None = None
 
 
 class IngestView:
@@ -117,6 +135,19 @@ class IngestView:
     def mask(self, i: int) -> np.ndarray:
         """uint8 mask, 255 = usable (inside the field of view, not specular)."""
         return cv2.imread(str(self.mask_path(i)), cv2.IMREAD_GRAYSCALE)
+
+    def tool_mask(self, i: int) -> np.ndarray | None:
+        """bool (H, W), True on a tool (given with the input or detected), or None when ingest
+        has no tool mask for frame i: the depth under a tool is inferred, not observed."""
+        file = self.frame(i).tool
+        if file is None or not (self.folder / file).is_file():
+            return None
+        return cv2.imread(str(self.folder / file), cv2.IMREAD_GRAYSCALE) > 127
+
+    def known_poses(self) -> dict[int, np.ndarray] | None:
+        """The input's own poses (not ground truth) by frame index, or None."""
+        known = self.file.known_poses
+        return None if known is None else {i: np.asarray(m) for i, m in known.c2w.items()}
 
     @property
     def fov_path(self) -> Path:

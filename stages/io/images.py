@@ -88,6 +88,8 @@ class ImageListSource(InputSource):
             h.append(f"{f.relative_to(self.path)}:{digest_path(f)}")
         if self.intrinsics is not None:
             h.append(self.intrinsics.model_dump_json())
+        if self.tool_masks is not None:
+            h.append(self.tool_masks.digest())
         return digest_text("|".join(h))
 
 

@@ -11,6 +11,7 @@ import numpy as np
 from endopipe.pipeline.cache import digest_path, digest_text
 from endopipe.stages.camera import Camera
 from endopipe.stages.io.ground_truth import GroundTruthSource, open_case_truth
+from endopipe.stages.io.tool_masks import ToolMasks
 
 
 @dataclass
@@ -29,6 +30,12 @@ class InputSource:
         self.path = path
         self.intrinsics = intrinsics
         self.gt_dir = gt_dir
+        #: Tool masks given with the input (a case folder's or a data set's masks/), or None.
+        self.tool_masks: ToolMasks | None = None
+        #: Poses the input comes with that are not ground truth (EndoNeRF's poses_bounds.npy):
+        #: OpenCV c2w by source_index, and where they came from; None when it has none.
+        self.known_poses: list[np.ndarray] | None = None
+        self.known_poses_from: str | None = None
 
     def frames(self) -> Iterator[Frame]:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -40,6 +47,8 @@ class InputSource:
         parts = [digest_path(self.path)]
         if self.intrinsics is not None:
             parts.append(self.intrinsics.model_dump_json())
+        if self.tool_masks is not None:
+            parts.append(self.tool_masks.digest())
         return digest_text("|".join(parts))
 
     def ground_truth(self) -> GroundTruthSource | None:

@@ -15,6 +15,7 @@ from endopipe.stages.io.images import IMAGE_SUFFIXES, ImageFolderSource
 from endopipe.stages.io.input_source import InputSource
 from endopipe.stages.io.intrinsics import load_intrinsics_file
 from endopipe.stages.io.messages import HINT
+from endopipe.stages.io.tool_masks import TOOLS_DIR, ToolMasks, file_number, masks_for_frames
 from endopipe.stages.io.video import VIDEO_SUFFIXES, VideoSource
 
 #: Readers open_input can be told to use (`endopipe batch --format`); "auto" detects.
@@ -71,4 +72,13 @@ def open_input(
         source = VideoSource(path, intrinsics, gt_dir)
     if case_dir is not None:
         source.kind = "case"
+        source.tool_masks = case_tool_masks(case_dir, source)
     return source
+
+
+def case_tool_masks(case_dir: Path, source: InputSource) -> ToolMasks | None:
+    """A case folder's masks/ (255 = tool), matched by number to frames/ files, or to the
+    video's frame numbers."""
+    files = source.files if isinstance(source, ImageFolderSource) else None
+    numbers = [file_number(f) for f in files] if files is not None else None
+    return masks_for_frames(case_dir / TOOLS_DIR, numbers)
