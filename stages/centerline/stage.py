@@ -61,8 +61,7 @@ class Centerline(Stage):
         centres = poses.centres()
         if len(centres) == 0:
             raise StageFailed("centerline: no registered cameras in 02_poses")
-        motion = poses.motion
-        if motion is not None and motion.camera == "still":
+        if poses.still:
             return no_parallax(ctx, centres, poses.file.units)
         view_dirs = np.array([poses.c2w[i][:3, 2] for i in poses.registered]).reshape(-1, 3)
         points = poses.points()

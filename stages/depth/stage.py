@@ -81,8 +81,7 @@ class Depth(Stage):
                 advance(info=f"{1000 * times[-1]:.0f} ms/frame")
         png_scale = write_depth_pngs(ctx.out / DEPTH_DIR, depths)
         extrapolated = poses.past_fitted_radius(k)
-        motion = poses.motion
-        still = motion is not None and motion.camera == "still"
+        still = poses.still
         if still:
             ctx.log(
                 "depth from one viewpoint (the camera stands still): no pixel was seen from two "

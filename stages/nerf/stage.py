@@ -224,14 +224,13 @@ def choose_geometry(cfg: NerfConfig, prior, log) -> NerfConfig:
 def still_camera_settings(cfg: NerfConfig, poses, log) -> NerfConfig:
     """A still camera's field: its grid unwarped (when `field.warp` is auto) and its shading
     without n.l (why: below)."""
-    motion = poses.motion
-    if motion is not None and motion.camera == "still" and cfg.field.warp == "auto":
+    if poses.still and cfg.field.warp == "auto":
         # The warp keeps fine cells around the camera path; a still camera's path is a point
         # and its scene lies a typical distance away, in the coarse cells (held-out 15.9 dB
         # warped on a still da Vinci clip at 600 steps).
         cfg = cfg.model_copy(update={"field": cfg.field.model_copy(update={"warp": False})})
         log("grid warp off: the camera stands still, its scene lies away from it")
-    if motion is not None and motion.camera == "still" and cfg.shading.normal_term:
+    if poses.still and cfg.shading.normal_term:
         # Seen from one place, a surface's tilt is not measured: n.l lit the field's noisy
         # normals into black speckles (held-out 17.1 dB against 26.6 without, a still da Vinci
         # clip at 600 steps). The light still falls off with distance.

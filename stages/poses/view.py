@@ -156,6 +156,12 @@ class PosesView:
         return self.summary.motion
 
     @property
+    def still(self) -> bool:
+        """The camera stood still: one pose for every frame, nothing seen from two places."""
+        motion = self.motion
+        return motion is not None and motion.camera == "still"
+
+    @property
     def registered(self) -> list[int]:
         return sorted(self.c2w)
 
