@@ -253,7 +253,7 @@ def choose_dynamic(cfg: NerfConfig, poses, n_frames: int, log) -> NerfConfig:
         why = (
             f"the footage is {motion.label}"
             if motion is not None
-            else "the footage's motion was not judged (poses from a file or the truth)"
+            else "the footage's motion was not judged (poses.motion.check off)"
         )
         log(f"field auto: {'dynamic (space-time planes)' if moving else 'static'}: {why}")
     if dynamic is False:
