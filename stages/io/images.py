@@ -90,6 +90,8 @@ class ImageListSource(InputSource):
             h.append(self.intrinsics.model_dump_json())
         if self.tool_masks is not None:
             h.append(self.tool_masks.digest())
+        if self.stereo is not None:
+            h.append(self.stereo.digest())
         return digest_text("|".join(h))
 
 

@@ -11,6 +11,7 @@ import numpy as np
 from endopipe.pipeline.cache import digest_path, digest_text
 from endopipe.stages.camera import Camera
 from endopipe.stages.io.ground_truth import GroundTruthSource, open_case_truth
+from endopipe.stages.io.stereo_pairs import StereoPairs
 from endopipe.stages.io.tool_masks import ToolMasks
 
 
@@ -36,6 +37,8 @@ class InputSource:
         #: OpenCV c2w by source_index, and where they came from; None when it has none.
         self.known_poses: list[np.ndarray] | None = None
         self.known_poses_from: str | None = None
+        #: Rectified right views of the frames (a stereo data set, `--right`), or None.
+        self.stereo: StereoPairs | None = None
 
     def frames(self) -> Iterator[Frame]:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -49,6 +52,8 @@ class InputSource:
             parts.append(self.intrinsics.model_dump_json())
         if self.tool_masks is not None:
             parts.append(self.tool_masks.digest())
+        if self.stereo is not None:
+            parts.append(self.stereo.digest())
         return digest_text("|".join(parts))
 
     def ground_truth(self) -> GroundTruthSource | None:
