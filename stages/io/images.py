@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import re
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -18,6 +19,10 @@ from endopipe.stages.io.input_source import Frame, InputSource
 from endopipe.stages.io.messages import HINT
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+#: Frames whose sizes differ by at most this many pixels in width and in height (Hamlyn's copies
+#: hold 418- and 419-pixel-wide frames of one camera) are cropped, centred, to the smallest.
+CROP_TOLERANCE_PX = 2
+log = logging.getLogger("endopipe.io")
 
 
 def natural_key(path: Path) -> tuple:
@@ -40,13 +45,13 @@ class ImageFolderSource(InputSource):
         self.files = list_images(path)
         if not self.files:
             raise InputError(f"folder {path} holds no images (png, jpg, bmp, tif); {HINT}")
-        check_one_size(self.files)
+        self.size = common_size(self, self.files)
 
     def frame_count(self) -> int | None:
         return len(self.files)
 
     def frames(self) -> Iterator[Frame]:
-        return read_images(self.files)
+        return read_images(self.files, self.size)
 
 
 class ImageListSource(InputSource):
@@ -68,13 +73,13 @@ class ImageListSource(InputSource):
         self.files = files
         if not self.files:
             raise InputError(f"{path} holds no frames for the {self.kind} reader; {HINT}")
-        check_one_size(self.files)
+        self.size = common_size(self, self.files)
 
     def frame_count(self) -> int | None:
         return len(self.files)
 
     def frames(self) -> Iterator[Frame]:
-        return read_images(self.files)
+        return read_images(self.files, self.size)
 
     def ground_truth(self) -> GroundTruthSource | None:
         if self.truth is None or self.gt_dir is None:
@@ -95,37 +100,92 @@ class ImageListSource(InputSource):
         return digest_text("|".join(h))
 
 
-def read_images(files: list[Path]) -> Iterator[Frame]:
-    """The images as RGB frames, in order; an unreadable one or one of another size stops."""
+def read_images(files: list[Path], size: tuple[int, int] | None = None) -> Iterator[Frame]:
+    """The images as RGB frames, in order; an unreadable one stops. `size` (width, height):
+    frames a pixel or two larger are cropped to it, centred (`common_size`); without it, or
+    further apart, a frame of another size stops."""
     first: tuple[Path, tuple[int, ...]] | None = None
     for i, f in enumerate(files):
         bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
         if bgr is None:
             raise InputError(f"cannot read image {f}; remove it or replace it")
+        if size is not None and bgr.shape[1::-1] != size and _within(bgr.shape[1::-1], size):
+            x0, y0 = crop_offset(bgr.shape[1::-1], size)
+            bgr = bgr[y0 : y0 + size[1], x0 : x0 + size[0]]
         first = first or (f, bgr.shape[:2])
         if bgr.shape[:2] != first[1]:
             _refuse_mixed_sizes(first[0], first[1][::-1], f, bgr.shape[1::-1])
         yield Frame(i, None, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
 
 
-def check_one_size(files: list[Path]) -> None:
-    """All frames from one camera at one resolution, checked from the image headers (Pillow
-    reads only those) before a case folder is made; unreadable files are left to read_images."""
-    first: tuple[Path, tuple[int, int]] | None = None
+def header_sizes(files: list[Path]) -> list[tuple[Path, tuple[int, int]]]:
+    """(file, (width, height)) from the image headers (Pillow reads only those); unreadable
+    files are left out (read_images names them)."""
+    out = []
     for f in files:
         try:
             with Image.open(f) as image:
-                size = image.size
+                out.append((f, image.size))
         except (OSError, UnidentifiedImageError):
             continue
-        first = first or (f, size)
-        if size != first[1]:
-            _refuse_mixed_sizes(first[0], first[1], f, size)
+    return out
+
+
+def check_one_size(files: list[Path]) -> tuple[int, int] | None:
+    """The one size every frame shares, or the smallest when they differ by at most
+    CROP_TOLERANCE_PX a dimension (None when no header could be read); frames further apart
+    are refused: one camera at one resolution."""
+    return _common(header_sizes(files))
+
+
+def _common(sizes: list[tuple[Path, tuple[int, int]]]) -> tuple[int, int] | None:
+    if not sizes:
+        return None
+    size = (min(s[0] for _, s in sizes), min(s[1] for _, s in sizes))
+    ref_file, ref = min(sizes, key=lambda fs: fs[1][0] * fs[1][1])
+    for f, s in sizes:
+        if not _within(s, size):
+            _refuse_mixed_sizes(ref_file, ref, f, s)
+    return size
+
+
+def common_size(source: InputSource, files: list[Path]) -> tuple[int, int] | None:
+    """The frames' common size (`check_one_size`); when frames are cropped to it, one line says
+    so (logged and kept in `source.notes`) and the source's intrinsics follow the crop."""
+    sizes = header_sizes(files)
+    size = _common(sizes)
+    odd = [s for _, s in sizes if s != size]
+    if size is None or not odd:
+        return size
+    others = ", ".join(f"{w}x{h}" for w, h in sorted(set(odd)))
+    line = (
+        f"{len(odd)} of {len(files)} frames are {others}, not {size[0]}x{size[1]}: cropped to "
+        f"{size[0]}x{size[1]}, centred"
+    )
+    k = source.intrinsics
+    if k is not None and (k.width, k.height) != size and _within((k.width, k.height), size):
+        x0, y0 = crop_offset((k.width, k.height), size)
+        source.intrinsics = k.cropped(x0, y0, *size)
+        if x0 or y0:
+            line += f"; the intrinsics' principal point moved by ({-x0}, {-y0}) px"
+    log.warning(line)
+    source.notes.append(line)
+    return size
+
+
+def crop_offset(size: tuple[int, int], to: tuple[int, int]) -> tuple[int, int]:
+    """Top-left corner of the centred `to` crop of an image of `size` (width, height)."""
+    return (size[0] - to[0]) // 2, (size[1] - to[1]) // 2
+
+
+def _within(size: tuple[int, int], to: tuple[int, int]) -> bool:
+    return 0 <= size[0] - to[0] <= CROP_TOLERANCE_PX and 0 <= size[1] - to[1] <= CROP_TOLERANCE_PX
 
 
 def _refuse_mixed_sizes(a: Path, size_a: tuple, b: Path, size_b: tuple) -> None:
     raise InputError(
         f"images differ in size: {a.name} is {size_a[0]}x{size_a[1]}, {b.name} is "
         f"{size_b[0]}x{size_b[1]} (in {b.parent}); endopipe needs every frame from one camera "
-        "at one resolution: move the odd images out, or resize them all to one size"
+        f"at one resolution (frames at most {CROP_TOLERANCE_PX} px apart are cropped): move the "
+        "odd images out, or resize them all to one size"
     )

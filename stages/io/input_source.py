@@ -39,6 +39,9 @@ class InputSource:
         self.known_poses_from: str | None = None
         #: Rectified right views of the frames (a stereo data set, `--right`), or None.
         self.stereo: StereoPairs | None = None
+        #: One line each of what the reader did to the input that the run should say (frames
+        #: cropped to one size, a lens fitted to the data set's calibration).
+        self.notes: list[str] = []
 
     def frames(self) -> Iterator[Frame]:  # pragma: no cover - abstract
         raise NotImplementedError
