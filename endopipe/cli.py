@@ -246,13 +246,29 @@ def export(
     symlink: Annotated[
         bool, typer.Option(help="nerfstudio / colmap: symlink the images instead of copying.")
     ] = False,
+    for_: Annotated[
+        str | None,
+        typer.Option(
+            "--for",
+            help="endonerf: the loader to write for: endonerf (default) | endogaussian | "
+            "deform3dgs (its axes, image size, principal point; depth and poses in one unit).",
+        ),
+    ] = None,
     endonerf_axes: Annotated[
+        str | None,
+        typer.Option(
+            help="endonerf without --for: rotation columns of poses_bounds.npy: llff (down, "
+            "right, back) | opengl (right, up, back) | opencv (right, down, forward); the "
+            "camera as it is, depth x depth_scale, translations in the case's units."
+        ),
+    ] = None,
+    resolution: Annotated[
         str,
         typer.Option(
-            help="endonerf: rotation columns of poses_bounds.npy: llff (down, right, back) | "
-            "opengl (right, up, back) | opencv (right, down, forward)."
+            help="working (the frames the pipeline used) | source (the input's frames at full "
+            "size, depth upsampled edge-aware; nerfstudio and endonerf)."
         ),
-    ] = "llff",
+    ] = "working",
 ) -> None:
     """Export a case's poses, frames, depth and mesh for nerfstudio, COLMAP, EndoNeRF or PLY."""
     from endopipe.commands.export import export_command
@@ -265,6 +281,8 @@ def export(
         out_dir,
         symlink=symlink,
         endonerf_axes=endonerf_axes,
+        target=for_,
+        resolution=resolution,
     )
 
 

@@ -178,7 +178,7 @@ def test_endonerf_round_trip(case: Path, tmp_path: Path, axes: str) -> None:
 
 def test_endonerf_llff_matches_the_llff_loader_convention(case: Path, tmp_path: Path) -> None:
     """What NeRF's load_llff does with a row (swap to right, up, back) gives OpenGL's c2w."""
-    export_case(case, "endonerf", tmp_path / "e")
+    export_case(case, "endonerf", tmp_path / "e", endonerf_axes="llff")
     arr = np.load(tmp_path / "e" / "poses_bounds.npy")
     poses = arr[:, :15].reshape(-1, 3, 5).transpose(1, 2, 0)  # as load_llff reads it
     poses = np.concatenate([poses[:, 1:2], -poses[:, 0:1], poses[:, 2:]], 1)  # its column swap

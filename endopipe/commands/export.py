@@ -21,7 +21,9 @@ def export_command(
     out_dir: Path | None,
     *,
     symlink: bool,
-    endonerf_axes: str,
+    endonerf_axes: str | None = None,
+    target: str | None = None,
+    resolution: str = "working",
 ) -> None:
     """Export CASE (a folder, or a name under the workdir); the stage folders are the engine's."""
     from endopipe.export import export_case
@@ -34,6 +36,8 @@ def export_command(
         folders=pipe.folders(case_dir),
         symlink=symlink,
         endonerf_axes=endonerf_axes,
+        target=target,
+        resolution=resolution,
     )
     out.print(f"exported {result.frames} frame(s) as {result.format} to {result.out}")
     for note in result.notes:
