@@ -346,9 +346,17 @@ def synth(
         str,
         typer.Option(
             help="endopipe | endonerf (EndoNeRF's images/ masks/ depth/ poses_bounds.npy "
-            "instead of the frames; gt/ kept) | both (EndoNeRF's in OUT/endonerf/)."
+            "instead of the frames; gt/ kept) | both (EndoNeRF's in OUT/endonerf/) | hamlyn "
+            "(rectified: image01/ depth01/ intrinsics.txt) | edam (color/ depth/ intrinsic/)."
         ),
     ] = "endopipe",
+    stereo: Annotated[
+        bool,
+        typer.Option(
+            "--stereo",
+            help="A right eye 5 mm along +x too (--layout hamlyn: image02/, extrinsics.txt).",
+        ),
+    ] = False,
 ) -> None:
     """Write a synthetic lumen case with exact ground truth (depth, poses, mesh, speculars);
     a long recording with pauses and spoiled frames (listed in gt/synth.json) on request; a
@@ -380,6 +388,7 @@ def synth(
             "still_camera": still_camera,
         },
         layout=layout,
+        stereo=stereo,
     )
 
 

@@ -12,6 +12,7 @@ the camera may stand still for the whole clip.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -116,6 +117,14 @@ class SynthConfig(BaseModel):
     still_camera: bool = Field(
         False, description="Every frame at the first pose of the path (the scene may move)."
     )
+    stereo_baseline_mm: float | None = Field(
+        None,
+        gt=0.0,
+        le=50.0,
+        description="A right eye too: the same scene rendered from each frame's camera moved "
+        "this far along its +x, mm (a rectified pair; each eye lit from its own centre). None: "
+        "monocular. Needs a layout with a place for it (hamlyn).",
+    )
 
     @field_validator("width", "height")
     @classmethod
@@ -151,6 +160,7 @@ DEFORM_DEFAULTS = {
 }
 #: The deformation's default amplitude, per kind (breathe: relative; pull: mm).
 AMPLITUDE = {"breathe": 0.04, "pull": 4.0}
+STEREO_DEFAULTS = {"stereo_baseline_mm": None}
 RECORDING_DEFAULTS = {
     "step_mm": 1.0,
     "pauses": 0,
@@ -168,7 +178,7 @@ def intrinsics_for(cfg: SynthConfig) -> Camera:
 
 def describe(cfg: SynthConfig, intr: Camera, events: Events) -> dict:
     """The config and, when used, the lens, vignetting and events, for gt/synth.json."""
-    defaults = {**OPTICS_DEFAULTS, **RECORDING_DEFAULTS, **DEFORM_DEFAULTS}
+    defaults = {**OPTICS_DEFAULTS, **RECORDING_DEFAULTS, **DEFORM_DEFAULTS, **STEREO_DEFAULTS}
     unset = {k for k, v in defaults.items() if getattr(cfg, k) == v}
     meta: dict = {"config": cfg.model_dump(exclude=unset)}
     if events.paused or events.blurred or events.washed_out:
@@ -253,16 +263,20 @@ class Setup:
             return self.scene
         return DeformedScene(self.scene, self.disp, self.time(i))
 
-    def trace(self, i: int, intr: Camera | None = None) -> FrameGeometry:
-        """The wall at frame i's time, seen from its pose (the tool not included)."""
+    def trace(
+        self, i: int, intr: Camera | None = None, pose: np.ndarray | None = None
+    ) -> FrameGeometry:
+        """The wall at frame i's time, seen from its pose or `pose` (the tool not included)."""
         intr = intr or self.intr
-        return trace_frame(self.scene_at(i), self.bound, self.guide, intr, self.poses[i])
+        pose = self.poses[i] if pose is None else pose
+        return trace_frame(self.scene_at(i), self.bound, self.guide, intr, pose)
 
-    def tool_hit(self, i: int) -> ToolHit | None:
+    def tool_hit(self, i: int, pose: np.ndarray | None = None) -> ToolHit | None:
         """Where the tool lies along each of frame i's rays (None: no tool)."""
         if self.tool is None:
             return None
-        origin, dirs, _ = camera_rays(self.intr, self.poses[i])
+        pose = self.poses[i] if pose is None else pose
+        origin, dirs, _ = camera_rays(self.intr, pose)
         return self.tool.cast(origin, dirs, self.time(i))
 
 
@@ -332,13 +346,46 @@ def _render_frames(
         if hit is not None:
             rgb, depth, spec, tool = put_tool(setup, i, geom, hit, (rgb, spec), noise_rng, cfg)
         rgb = spoil(rgb, setup.events.kind_of(i), noise_rng)
-        writer.add_frame(rgb, depth, spec, tool)
+        right = None
+        if cfg.stereo_baseline_mm is not None:
+            right = render_right(setup, i, cfg, cfg.stereo_baseline_mm)
+        writer.add_frame(rgb, depth, spec, tool, right=right)
         lo.append(geom.points.min(0))
         hi.append(geom.points.max(0))
         spec_frac.append(float(spec.mean()))
         if progress is not None:
             progress(i + 1, cfg.frames)
     return np.stack([np.min(lo, 0), np.max(hi, 0)]), float(np.mean(spec_frac))
+
+
+def right_pose(pose: np.ndarray, baseline_mm: float) -> np.ndarray:
+    """The right eye of a rectified pair: the camera moved `baseline_mm` along its own +x."""
+    out = pose.copy()
+    out[:3, 3] += baseline_mm * pose[:3, 0]
+    return out
+
+
+def render_right(setup: Setup, i: int, cfg: SynthConfig, baseline_mm: float) -> np.ndarray:
+    """Frame i's right eye: the same scene, tool and spoiling from the moved camera, with
+    sensor noise of its own. The scope has one light: the wall is lit from the left eye's
+    centre, so its shading is the left image's (highlights included: a simplification, real
+    ones move with the eye)."""
+    pose = right_pose(setup.poses[i], baseline_mm)
+    geom = lit_from(setup.trace(i, pose=pose), setup.poses[i][:3, 3])
+    noise_rng = np.random.default_rng([cfg.seed, 7927, i])
+    rgb, spec = shade(geom, setup.texture, setup.light, cfg.noise_std, noise_rng, setup.gain)
+    hit = setup.tool_hit(i, pose)
+    if hit is not None:
+        rgb = put_tool(setup, i, geom, hit, (rgb, spec), noise_rng, cfg, pose)[0]
+    return spoil(rgb, setup.events.kind_of(i), noise_rng)
+
+
+def lit_from(geom: FrameGeometry, light: np.ndarray) -> FrameGeometry:
+    """The geometry as shading reads it with the light at `light` instead of at the camera."""
+    to_light = light - geom.points
+    dist = np.linalg.norm(to_light, axis=1)
+    cos = np.einsum("ij,ij->i", geom.normals, to_light) / np.maximum(dist, 1e-12)
+    return dataclasses.replace(geom, dist=dist, cos=cos, origin=np.asarray(light, float))
 
 
 def put_tool(
@@ -349,10 +396,11 @@ def put_tool(
     image: tuple[np.ndarray, np.ndarray],
     noise_rng: np.random.Generator,
     cfg: SynthConfig,
+    pose: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The tool over the tissue where it is nearer along the ray: image, z-depth, specular
-    mask and the tool mask (True = tool) of frame i."""
-    _, dirs, z_per_t = camera_rays(setup.intr, setup.poses[i])
+    mask and the tool mask (True = tool) of frame i, seen from its pose or `pose`."""
+    _, dirs, z_per_t = camera_rays(setup.intr, setup.poses[i] if pose is None else pose)
     tissue_t = np.full(len(dirs), np.inf)
     tissue_t[geom.valid.ravel()] = geom.dist
     front = hit.t < tissue_t
@@ -379,6 +427,9 @@ def generate_case(
     called after each frame. `layout` writes another tool's layout too (in its subfolder) or
     instead of endopipe's frames (subfolder "")."""
     start = time.perf_counter()
+    if cfg.stereo_baseline_mm is not None and (layout is None or not layout.takes_right):
+        where = "endopipe's case folder" if layout is None else f"the {layout.name} layout"
+        raise ValueError(f"{where} has no place for a right eye; write a stereo case as hamlyn")
     # refuses a foreign folder first
     writer = CaseWriter(out, intrinsics_for(cfg), cfg.fps, layout)
     try:

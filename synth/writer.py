@@ -31,8 +31,15 @@ MARKER = "gt/synth.json"  # written last; marks a folder as a synth case we may 
 class LayoutSink(Protocol):
     """Another tool's layout, fed frame by frame as the case is rendered."""
 
-    def add_frame(self, rgb: np.ndarray, depth: np.ndarray, tool: np.ndarray | None) -> None:
-        """One frame: image (HxWx3 uint8 RGB), z-depth (mm, 0 = none), tool mask or None."""
+    def add_frame(
+        self,
+        rgb: np.ndarray,
+        depth: np.ndarray,
+        tool: np.ndarray | None,
+        right: np.ndarray | None = None,
+    ) -> None:
+        """One frame: image (HxWx3 uint8 RGB), z-depth (mm, 0 = none), tool mask or None, and
+        the right eye's image of a stereo case (given only to a layout that `takes_right`)."""
 
     def finish(self, poses: np.ndarray) -> None:
         """The OpenCV c2w poses (N, 4, 4) of every frame, mm; after the last frame."""
@@ -46,6 +53,8 @@ class Layout:
     name: str
     make: Callable[[Path, Camera], LayoutSink]
     subfolder: str = ""
+    #: The layout has a place for a right eye (a stereo case's second image per frame).
+    takes_right: bool = False
 
 
 def _yuv_frame(rgb: np.ndarray) -> av.VideoFrame:
@@ -121,15 +130,18 @@ class CaseWriter:
         depth: np.ndarray,
         specular: np.ndarray,
         tool: np.ndarray | None = None,
+        right: np.ndarray | None = None,
     ) -> None:
         """One frame: its image (HxWx3 uint8), exact z-depth (mm, 0 = miss), specular mask,
-        and where a tool covers it (masks/, 255 = tool: EndoNeRF's polarity) when one is in
-        the scene."""
+        where a tool covers it (masks/, 255 = tool: EndoNeRF's polarity) when one is in the
+        scene, and the right eye's image of a stereo case (to the layout's sink only)."""
         name = f"{self.count:06d}"
         np.save(self.tmp / "gt" / "depth" / f"{name}.npy", depth.astype(np.float32))
         mask = np.where(specular, 255, 0).astype(np.uint8)
         cv2.imwrite(str(self.tmp / "gt" / "specular" / f"{name}.png"), mask)
-        if self.sink is not None:
+        if self.sink is not None and right is not None:
+            self.sink.add_frame(rgb, depth, tool, right=right)
+        elif self.sink is not None:  # a sink without a place for a right eye takes three
             self.sink.add_frame(rgb, depth, tool)
         if not self.frames:
             self.count += 1
@@ -157,6 +169,9 @@ class CaseWriter:
             for packet in self._stream.encode():
                 self._container.mux(packet)
             self._container.close()
+        surface = getattr(self.sink, "add_surface", None)
+        if callable(surface):  # a layout that ships the scene's surface (C3VD's model mesh)
+            surface(*mesh)
         if self.sink is not None:
             self.sink.finish(poses)
         self._write_json(

@@ -13,8 +13,10 @@ if TYPE_CHECKING:
     from endopipe.synth import Layout, SynthConfig, SynthSummary
 
 #: --layout: endopipe's case folder, EndoNeRF's layout instead of its frames, or both (EndoNeRF's
-#: in the case's endonerf/ folder).
-LAYOUTS = ("endopipe", "endonerf", "both")
+#: in the case's endonerf/ folder); a rectified Hamlyn sequence (hamlyn) or EDaM's copy (edam).
+LAYOUTS = ("endopipe", "endonerf", "both", "hamlyn", "edam", "c3vd", "scared")
+#: --stereo: the right eye's baseline, mm (Hamlyn's rig: about 5).
+STEREO_BASELINE_MM = 5.0
 
 
 def synth_case(
@@ -31,6 +33,7 @@ def synth_case(
     recording: dict | None = None,
     motion: dict | None = None,
     layout: str = "endopipe",
+    stereo: bool = False,
 ) -> None:
     """Validate the settings (one line naming the bad one), write the case, say what it is."""
     from pydantic import ValidationError
@@ -50,14 +53,18 @@ def synth_case(
             vignetting=vignetting,
             **(recording or {}),
             **(motion or {}),
+            stereo_baseline_mm=STEREO_BASELINE_MM if stereo else None,
         )
     except ValidationError as e:
         err = e.errors()[0]
         raise EndopipeError(f"synth {'.'.join(map(str, err['loc']))}: {err['msg']}") from None
     if layout not in LAYOUTS:
         raise EndopipeError(f"synth layout: {layout} is none of {', '.join(LAYOUTS)}")
+    sink = other_layout(layout, cfg.stereo_baseline_mm)
+    if stereo and (sink is None or not sink.takes_right):
+        raise EndopipeError(f"synth --stereo: the {layout} layout has no right eye; use hamlyn")
     ensure_writable(out_dir.parent if out_dir.parent != Path("") else Path("."))
-    summary = write_synth(out_dir, cfg, other_layout(layout))
+    summary = write_synth(out_dir, cfg, sink)
     moving = ""
     if summary.deform != "none":
         moving = f", {summary.deform} {summary.deform_amplitude:g}"
@@ -69,14 +76,46 @@ def synth_case(
     )
 
 
-def other_layout(layout: str) -> Layout | None:
-    """EndoNeRF's layout, written by the export library as the frames are rendered."""
+def other_layout(layout: str, baseline_mm: float | None = None) -> Layout | None:
+    """EndoNeRF's layout, written by the export library as the frames are rendered; Hamlyn's
+    and EDaM's, by the synth library's sinks (Hamlyn's with the right eye at `baseline_mm`)."""
     if layout == "endopipe":
         return None
+    if layout in ("hamlyn", "edam"):
+        return data_set_layout(layout, baseline_mm)
+    if layout in ("c3vd", "scared"):
+        return lens_layout(layout, baseline_mm)
     from endopipe.export.endonerf_sink import EndoNerfSink
     from endopipe.synth import Layout
 
     return Layout("endonerf", EndoNerfSink, subfolder="endonerf" if layout == "both" else "")
+
+
+def data_set_layout(layout: str, baseline_mm: float | None) -> Layout:
+    """A data set's own layout in place of endopipe's frames (gt/ kept beside it)."""
+    from functools import partial
+
+    from endopipe.synth import Layout
+    from endopipe.synth.edam_sink import EdamSink
+    from endopipe.synth.hamlyn_sink import HamlynSink
+
+    if layout == "edam":
+        return Layout("edam", EdamSink)
+    return Layout("hamlyn", partial(HamlynSink, baseline_mm=baseline_mm), takes_right=True)
+
+
+def lens_layout(layout: str, baseline_mm: float | None) -> Layout:
+    """C3VD's layout (its calibration and model mesh) or a SCARED keyframe (its right eye at
+    `baseline_mm` when given), in place of endopipe's frames (gt/ kept beside it)."""
+    from functools import partial
+
+    from endopipe.synth import Layout
+    from endopipe.synth.c3vd_sink import C3VDSink
+    from endopipe.synth.scared_sink import ScaredSink
+
+    if layout == "c3vd":
+        return Layout("c3vd", C3VDSink)
+    return Layout("scared", partial(ScaredSink, baseline_mm=baseline_mm), takes_right=True)
 
 
 def write_synth(out_dir: Path, cfg: SynthConfig, layout: Layout | None = None) -> SynthSummary:

@@ -20,7 +20,14 @@ from endopipe.stages.io.video import VIDEO_SUFFIXES
 MAX_DEPTH = 8
 
 
+#: Folders of depth maps (Hamlyn's depth01/, EDaM's and EndoNeRF's depth/): 16-bit PNGs that
+#: look like images but are never frames to reconstruct.
+DEPTH_FOLDER = re.compile(r"^depth\d*$", re.IGNORECASE)
+
+
 def _has_images(folder: Path) -> bool:
+    if DEPTH_FOLDER.match(folder.name):
+        return False
     return any(p.suffix.lower() in IMAGE_SUFFIXES and p.is_file() for p in folder.iterdir())
 
 
