@@ -6,8 +6,21 @@ cecum_t1_a/
   0000_depth.tiff ...    uint16 z-depth: depth_mm = v * 100 / 65535 (0 = invalid)
   pose.txt               one line per frame: 16 comma-separated values, column-major,
                          camera-to-world, millimetres
-  intrinsics.json        optional, endopipe format (C3VD ships a fisheye calibration instead)
+  coverage_mesh.obj      the registered model in the pose frame (mm): the mesh stage's truth
+                         (`outputMesh.obj` in the first release)
+  intrinsics.json        optional, endopipe format: used as given
 ```
+
+The scope's calibration is one for the whole data set (Scaramuzza's omnidirectional model, read
+by `ocam.read_ocam`): `calib_results.txt`, `camera_intrinsics.txt`, `config.ini` or
+`*omnidirectional*.txt`, in the sequence folder, its parent or grandparent, or in a
+`*omnidirectional_params/` folder there. Without intrinsics.json the lens is OpenCV's fisheye
+fitted to it (`ocam.fit_fisheye`), and its residual is said in one line.
+
+`coverage_mesh.obj` is DurrLab/C3VD's `rendergt` output (RenderingModule::writeOBJ): the model's
+vertices moved by the registration into the frame of pose.txt, its texture coordinates the
+coverage; `model.obj` of a registration folder is still in the model's own frame and is not
+read. pose.txt is that program's camera-to-world, written column-major.
 
 File-name zero padding differs between copies (`0_color.png`, `0000_color.png`): files are
 globbed and sorted by their number, and pose line n belongs to frame number n.
@@ -15,16 +28,20 @@ globbed and sorted by their number, and pose line n belongs to frame number n.
 
 from __future__ import annotations
 
+import logging
 import re
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from endopipe.pipeline.errors import InputError
 from endopipe.stages.camera import Camera
 from endopipe.stages.io.frame_truth import NumberedGroundTruth, numbered
 from endopipe.stages.io.images import ImageListSource
 from endopipe.stages.io.intrinsics import load_intrinsics_file
+from endopipe.stages.io.ocam import LensFit, OcamLens, fit_fisheye, read_ocam
 
 NAME = "c3vd"
 LAYOUT = "a folder of NNNN_color.png with NNNN_depth.tiff and pose.txt"
@@ -32,6 +49,12 @@ GT_KIND = "exact"
 COLOR = re.compile(r"^(\d+)_color\.png$", re.IGNORECASE)
 DEPTH = re.compile(r"^(\d+)_depth\.tiff?$", re.IGNORECASE)
 DEPTH_RANGE_MM = 100.0  # uint16 full scale
+#: The registered model in the pose frame, by release (first: the current name).
+MESH_FILES = ("coverage_mesh.obj", "outputMesh.obj")
+#: The omnidirectional calibration's names, in the order they are looked for.
+CALIBRATION_FILES = ("calib_results.txt", "camera_intrinsics.txt", "config.ini")
+CALIBRATION_GLOB = "*omnidirectional*.txt"
+log = logging.getLogger("endopipe.io")
 
 
 def is_sequence(path: Path) -> bool:
@@ -39,8 +62,10 @@ def is_sequence(path: Path) -> bool:
 
 
 def decode_depth(raw: np.ndarray) -> np.ndarray:
-    """uint16 tiff values -> float32 mm (0 stays 0 = invalid)."""
-    return (raw.astype(np.float64) * (DEPTH_RANGE_MM / 65535.0)).astype(np.float32)
+    """uint16 tiff values -> float32 mm; 0 (no surface) and 65535 (clamped at 100 mm: deeper,
+    by how much unknown) are invalid, as DurrLab/C3VD's python/exampleDataLoader.py reads them."""
+    mm = raw.astype(np.float64) * (DEPTH_RANGE_MM / 65535.0)
+    return np.where(raw >= 65535, 0.0, mm).astype(np.float32)
 
 
 def encode_depth(depth_mm: np.ndarray) -> np.ndarray:
@@ -81,6 +106,39 @@ def find_intrinsics(seq: Path) -> Camera | None:
     return None
 
 
+def find_calibration(seq: Path) -> Path | None:
+    """The data set's omnidirectional calibration nearest the sequence (module docstring)."""
+    for folder in (seq, seq.parent, seq.parent.parent):
+        for where in (folder, *sorted(folder.glob("*omnidirectional_params"))):
+            for name in CALIBRATION_FILES:
+                if (where / name).is_file():
+                    return where / name
+            found = sorted(where.glob(CALIBRATION_GLOB))
+            if found:
+                return found[0]
+    return None
+
+
+def find_mesh(seq: Path) -> Path | None:
+    for name in MESH_FILES:
+        if (seq / name).is_file():
+            return seq / name
+    return None
+
+
+def calibrated_lens(calibration: Path, width: int, height: int) -> LensFit:
+    """The fisheye fitted to the calibration at the frames' size (fitted once per lens)."""
+    lens = read_ocam(calibration)
+    if (lens.width, lens.height) != (width, height):
+        lens = lens.scaled(width, height)
+    return _fit(lens.model_dump_json())
+
+
+@lru_cache(maxsize=4)
+def _fit(lens_json: str) -> LensFit:
+    return fit_fisheye(OcamLens.model_validate_json(lens_json))
+
+
 class C3VDGroundTruth(NumberedGroundTruth):
     """Depth tiffs and pose.txt of one C3VD sequence, indexed by source_index."""
 
@@ -107,6 +165,10 @@ class C3VDGroundTruth(NumberedGroundTruth):
             f"numbered up to {max(self.numbers)}"
         )
 
+    def mesh_path(self) -> Path | None:
+        """The registered model (mm, pose frame): what the mesh stage scores against."""
+        return find_mesh(self.dir)
+
 
 class C3VDSource(ImageListSource):
     kind = NAME
@@ -119,8 +181,19 @@ def open_sequence(path: Path, intrinsics: Camera | None = None) -> C3VDSource:
     if not frames:
         raise InputError(f"{path} is not a C3VD sequence ({LAYOUT})")
     intrinsics = intrinsics or find_intrinsics(path)
-    has_gt = (path / "pose.txt").is_file() or bool(numbered(path, DEPTH))
-    return C3VDSource(path, [f for _, f in frames], intrinsics, path if has_gt else None)
+    said = None
+    calibration = find_calibration(path) if intrinsics is None else None
+    if calibration is not None:
+        with Image.open(frames[0][1]) as image:
+            fit = calibrated_lens(calibration, *image.size)
+        intrinsics = fit.camera
+        said = f"{fit.said()}; from {calibration}"
+        log.info(said)
+    has_gt = (path / "pose.txt").is_file() or bool(numbered(path, DEPTH)) or bool(find_mesh(path))
+    source = C3VDSource(path, [f for _, f in frames], intrinsics, path if has_gt else None)
+    if said:
+        source.notes.insert(0, said)
+    return source
 
 
 def ground_truth(path: Path) -> C3VDGroundTruth:

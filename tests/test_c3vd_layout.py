@@ -1,0 +1,141 @@
+"""C3VD as it ships: its omnidirectional calibration becomes the lens (a fitted OpenCV fisheye,
+its residual said), and its registered model is the truth the mesh stage scores against."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from endopipe.commands.synth import other_layout
+from endopipe.stages.camera import image_directions
+from endopipe.stages.io.c3vd import decode_depth, encode_depth
+from endopipe.stages.io.datasets import detect_dataset, open_dataset, open_ground_truth
+from endopipe.stages.io.ocam import fit_fisheye, read_ocam
+from endopipe.stages.mesh.config import MeshConfig
+from endopipe.stages.mesh.evaluation import (
+    case_ground_truth,
+    evaluate_against_gt,
+    ground_truth_mesh,
+)
+from endopipe.stages.surface.mesh import read_mesh
+from endopipe.synth import SynthConfig, generate_case
+from endopipe.synth.generate import intrinsics_for
+
+# C3VD's published CF-HQ190L calibration (DurrLab/C3VD python/exampleDataLoader.py), written as
+# its registration program's config.ini reads it (RenderingModule::loadParams).
+C3VD_CONFIG = """width=1350
+height=1080
+cx=678.544839263292
+cy=542.975887548343
+a0=769.243600037458
+a1=0.0
+a2=-0.000812770624150226
+a3=6.25674244578925e-07
+a4=-1.19662182144280e-09
+c=0.999986882249990
+d=0.00288273829525059
+e=-0.00296316513429569
+"""
+
+
+@pytest.fixture(scope="module")
+def case(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, SynthConfig]:
+    out = tmp_path_factory.mktemp("c3vd") / "seq"
+    cfg = SynthConfig(seed=3, frames=4, width=64, height=48, lens="fisheye")
+    generate_case(out, cfg, layout=other_layout("c3vd"))
+    return out, cfg
+
+
+def angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    return np.degrees(np.arccos(np.clip((a * b).sum(-1), -1.0, 1.0)))
+
+
+def test_the_calibration_is_the_lens(case: tuple[Path, SynthConfig]) -> None:
+    path, cfg = case
+    assert detect_dataset(path) == "c3vd"
+    source = open_dataset(path, "c3vd")
+    k, truth = source.intrinsics, intrinsics_for(cfg)
+    assert k is not None and k.model == "fisheye"
+    # measured: 0.001 px and 1e-4 deg apart; a lens read wrongly (axes, sign) is degrees off
+    assert abs(k.fx - truth.fx) < 0.01 * truth.fx and abs(k.cx - truth.cx) < 0.05
+    assert angles_deg(image_directions(k), image_directions(truth)).max() < 0.05
+    assert "px RMS" in source.notes[0] and "calib_results.txt" in source.notes[0]
+
+
+def test_the_model_mesh_is_the_mesh_stage_truth(case: tuple[Path, SynthConfig]) -> None:
+    path, cfg = case
+    gt = case_ground_truth(path)
+    mesh_file = ground_truth_mesh(gt)
+    assert mesh_file == path / "coverage_mesh.obj"
+    model, scene = read_mesh(mesh_file), read_mesh(path / "gt" / "mesh.ply")
+    assert np.allclose(model.vertices, scene.vertices, atol=1e-4)
+    gt_poses = dict(enumerate(open_ground_truth(path).poses()))
+    k = open_dataset(path, "c3vd").intrinsics
+    poses = SimpleNamespace(registered=list(gt_poses), c2w=gt_poses, metric=True, intrinsics=k)
+    cfg_mesh = MeshConfig(eval_samples=3_000, eval_occlusion=False)
+    # the model moved 0.5 mm: the score finds the truth in its frame and measures the shift
+    moved = type(model)(model.vertices + [0.0, 0.5, 0.0], model.faces, None)
+    off = evaluate_against_gt(moved, poses, mesh_file, gt_poses, 60.0, cfg_mesh)
+    assert off["evaluated"] and off["aligned"] == "gt_frame"
+    assert 0.1 < off["chamfer"] < 0.6
+
+
+def test_clamped_depth_is_unknown() -> None:
+    raw = encode_depth(np.array([0.0, 25.0, 150.0]))
+    assert raw[2] == 65535
+    assert np.allclose(decode_depth(raw), [0.0, 25.0, 0.0], atol=2e-3)
+
+
+def test_c3vd_published_calibration_fits_a_fisheye(tmp_path: Path) -> None:
+    (tmp_path / "config.ini").write_text(C3VD_CONFIG)
+    lens = read_ocam(tmp_path / "config.ini")
+    fit = fit_fisheye(lens)
+    # measured 1.46 px RMS (2.5 px at most) at 1350x1080: the stretch's skew (d, e ~ 0.003),
+    # which OpenCV's fisheye has no term for
+    assert fit.rms_px < 2.0 and fit.max_px < 3.5 and fit.pixel_share > 0.95
+    assert abs(fit.camera.fx - 769.2) < 5 and abs(fit.camera.cx - 678.5) < 1
+    assert fit_fisheye(lens.scaled(320, 256)).rms_px < 0.5  # measured 0.34 at working size
+
+
+def test_one_line_values_take_c_as_the_affine_value_near_one(tmp_path: Path) -> None:
+    values = (
+        "1350 1080 678.54 542.98 769.24 -0.00081277 6.2567e-07 -1.1966e-09 0.0029 0.99999 -0.003"
+    )
+    (tmp_path / "cfhq190l_omnidirectional_values.txt").write_text(values + "\n")
+    lens = read_ocam(tmp_path / "cfhq190l_omnidirectional_values.txt")
+    assert lens.stretch == [[0.99999, -0.003], [0.0029, 1.0]]
+    assert lens.poly[0] == 769.24 and lens.width == 1350
+
+
+def test_ocamcalib_export_reads_with_its_axes(tmp_path: Path) -> None:
+    text = """#polynomial coefficients for the DIRECT mapping function (ocam_model.ss in MATLAB).
+
+5 -2.716972e+02 0.000000e+00 -2.741744e-06 1.840940e-06 -8.024838e-10
+
+#polynomial coefficients for the inverse mapping function (ocam_model.invpol in MATLAB).
+
+3 583.4 470.8 97.1
+
+#center: "row" and "column", starting from 0 (C convention)
+
+700.5 729.0
+
+#affine parameters "c", "d", "e"
+
+1.001407 -0.000818 0.000221
+
+#image size: "height" and "width"
+
+1400 1440
+"""
+    (tmp_path / "calib_results.txt").write_text(text)
+    lens = read_ocam(tmp_path / "calib_results.txt")
+    assert (lens.cx, lens.cy, lens.width, lens.height) == (729.0, 700.5, 1440, 1400)
+    assert lens.poly[0] == pytest.approx(271.6972)  # looking forward
+    centre = lens.directions(np.array(lens.cx), np.array(lens.cy))
+    assert centre[2] == pytest.approx(1.0)
