@@ -50,7 +50,7 @@ class Centerline(Stage):
 
     name = "centerline"
     needs = ("ingest", "poses")
-    version = 7  # 7: a still camera gets no prior and relative units
+    version = 8  # 8: a still stereo camera's scene unit is its measured depth (mm)
     Config = CenterlineConfig
     Summary = CenterlineSummary
     View = CenterlineView
@@ -62,7 +62,7 @@ class Centerline(Stage):
         if len(centres) == 0:
             raise StageFailed("centerline: no registered cameras in 02_poses")
         if poses.still:
-            return no_parallax(ctx, centres, poses.file.units)
+            return no_parallax(ctx, centres, stereo_typical_depth(ctx.input(IngestView), poses))
         view_dirs = np.array([poses.c2w[i][:3, 2] for i in poses.registered]).reshape(-1, 3)
         points = poses.points()
         units = poses.file.units
@@ -187,23 +187,46 @@ STILL_DEPTH = 1.0
 STILL_REACH = 2.5
 
 
-def no_parallax(ctx: StageContext[CenterlineConfig], centres: np.ndarray, units: str):
+def stereo_typical_depth(ingest: IngestView, poses: PosesView) -> float | None:
+    """A still stereo camera's typical distance (mm): the median of its matched depth over
+    every frame; None without stereo depth or metric poses."""
+    if not (poses.metric and ingest.has_stereo):
+        return None
+    maps = [
+        d[d > 0] for i in range(len(ingest.frames)) if (d := ingest.stereo_depth(i)) is not None
+    ]
+    values = np.concatenate(maps) if maps else np.zeros(0)
+    return float(np.median(values)) if len(values) else None
+
+
+def no_parallax(
+    ctx: StageContext[CenterlineConfig], centres: np.ndarray, stereo_depth: float | None
+):
     """A still camera saw nothing from two places: no points, no shape to fit. No prior; the
-    scene's unit is set so that the typical depth is 1 (relative depth, said so)."""
+    scene's unit is the stereo depth's typical distance in mm when a rig measured it, else
+    the typical depth is 1 (relative depth, said so)."""
     cfg = ctx.config
-    scale = cfg.free_scale * STILL_DEPTH
-    prior = FreePrior(centres.mean(0), scale, STILL_REACH * STILL_DEPTH, STILL_DEPTH)
-    reason = (
-        "none: the camera stands still, so no parallax places any point; depth is relative "
-        f"(the typical distance is {STILL_DEPTH:g} unit by definition)"
-    )
+    typical = stereo_depth if stereo_depth is not None else STILL_DEPTH
+    units = "mm" if stereo_depth is not None else "relative"
+    scale = cfg.free_scale * typical
+    prior = FreePrior(centres.mean(0), scale, STILL_REACH * typical, typical)
+    if stereo_depth is not None:
+        reason = (
+            "none: the camera stands still, so no parallax places any point; the stereo rig "
+            f"measured the typical distance, {typical:.1f} mm"
+        )
+    else:
+        reason = (
+            "none: the camera stands still, so no parallax places any point; depth is relative "
+            f"(the typical distance is {STILL_DEPTH:g} unit by definition)"
+        )
     ctx.log(f"prior: {reason}")
     save_prior(prior, ctx.out / PRIOR_FILE)
     write_json(
         ctx.out / CENTERLINE_FILE,
-        CenterlineFile(
-            kind="none", units="relative", points=[], radius=[], arclength=[]
-        ).model_dump(mode="json", exclude_none=True),
+        CenterlineFile(kind="none", units=units, points=[], radius=[], arclength=[]).model_dump(
+            mode="json", exclude_none=True
+        ),
     )
     return CenterlineSummary(
         kind="none",
@@ -216,7 +239,7 @@ def no_parallax(ctx: StageContext[CenterlineConfig], centres: np.ndarray, units:
         radius_note="a still camera: no points",
         n_points_used=0,
         n_cameras=len(centres),
-        units="relative",
+        units=units,
     )
 
 

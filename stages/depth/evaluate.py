@@ -4,6 +4,8 @@ the two guesses of `metrics.baselines` beside ours, and PSNR / SSIM of the held-
 
 from __future__ import annotations
 
+from functools import partial
+
 import cv2
 import numpy as np
 
@@ -70,14 +72,17 @@ def evaluate(
     gt_depths: dict[int, np.ndarray],
     rgbs: dict[int, np.ndarray],
     principal: tuple[float, float] | None = None,
+    metric: bool = False,
+    stereo: dict[int, np.ndarray] | None = None,
 ) -> dict:
     """Both depth protocols per frame and mean; PSNR / SSIM on held-out frames.
     `baselines` holds the same protocol blocks (means, no per-frame list) for the radial and
     brightness guesses, scored on exactly our pixels: where the ground truth is valid, inside
     the field of view and ours has a depth, so a hole in ours is no easy pixel dropped for us
     alone (their coverage is therefore ours). `principal` is the camera's (cx, cy) on the
-    working grid (the image centre when None). The dict is metrics.json's content, which the
-    stage writes as `DepthMetrics`."""
+    working grid (the image centre when None). `metric` poses add the unscaled block; a stereo
+    rig's depth maps (`stereo`, by frame) are scored beside ours as a guess is. The dict is
+    metrics.json's content, which the stage writes as `DepthMetrics`."""
     metrics: dict = {}
     if gt_depths:
         inside = inside_view(ingest)
@@ -87,11 +92,17 @@ def evaluate(
         ours = [depths[i] for i in ids]
         truth = [gt_depths[i] for i in ids]
         masks = [inside] * len(ids)
+        if sequence is depth_sequence_metrics and metric:
+            sequence = partial(depth_sequence_metrics, unscaled=True)
         metrics.update(sequence(ours, truth, masks, ids))
         metrics["gt_kind"] = kind
         centre = principal or ((ingest.width - 1) / 2, (ingest.height - 1) / 2)
         metrics["baselines"] = {}
-        for name, maps in guesses(ingest, ids, inside, centre).items():
+        maps_of = guesses(ingest, ids, inside, centre)
+        if stereo:
+            empty = np.zeros((ingest.height, ingest.width), np.float32)
+            maps_of["stereo"] = [stereo.get(i, empty) for i in ids]
+        for name, maps in maps_of.items():
             same_pixels = [
                 np.where((d > 0) & np.isfinite(d), g, 0).astype(np.float32)
                 for d, g in zip(ours, maps, strict=True)
@@ -155,3 +166,10 @@ def scores_by_support(
         if any((d > 0).any() for d in ours):
             out[name] = sequence(ours, truth, [inside] * len(ids), ids)[block]
     return out
+
+
+def stereo_maps(ingest: IngestView, ids: list[int]) -> dict[int, np.ndarray]:
+    """The stereo rig's depth of frames `ids` ({} without a rig): scored beside ours."""
+    if not ingest.has_stereo:
+        return {}
+    return {i: d for i in ids if (d := ingest.stereo_depth(i)) is not None}

@@ -18,7 +18,12 @@ from endopipe.pipeline.stage import Stage, StageContext
 from endopipe.stages.camera import Camera, lens_valid_mask
 from endopipe.stages.centerline.view import CenterlineView
 from endopipe.stages.depth.config import DepthConfig
-from endopipe.stages.depth.evaluate import evaluate, ground_truth_depths, scores_by_support
+from endopipe.stages.depth.evaluate import (
+    evaluate,
+    ground_truth_depths,
+    scores_by_support,
+    stereo_maps,
+)
 from endopipe.stages.depth.metrics_file import DepthMetrics
 from endopipe.stages.depth.preview import write_preview
 from endopipe.stages.depth.renderer import FieldSight
@@ -39,7 +44,7 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    version = 9  # 9: held-out frames scored beside their neighbours' average
+    version = 10  # 10: metric poses scored unscaled too; a stereo rig's depth beside ours
     Config = DepthConfig
     Summary = DepthSummary
     View = DepthView
@@ -82,7 +87,13 @@ class Depth(Stage):
         png_scale = write_depth_pngs(ctx.out / DEPTH_DIR, depths)
         extrapolated = poses.past_fitted_radius(k)
         still = poses.still
-        if still:
+        stereo = stereo_maps(ingest, list(depths))
+        if still and stereo:
+            ctx.log(
+                "depth from a still stereo camera: the rig's two eyes measured it, in "
+                "millimetres, where they matched; elsewhere the field fills it in"
+            )
+        elif still:
             ctx.log(
                 "depth from one viewpoint (the camera stands still): no pixel was seen from two "
                 "places, so depth is relative, from shading, smoothness and the field's fit "
@@ -93,7 +104,9 @@ class Depth(Stage):
         )
         gt = ingest.ground_truth_for_scores(ctx.log)
         gt_depths = ground_truth_depths(gt, ingest, list(depths))
-        evaluation = evaluate(gt, ingest, depths, gt_depths, rgbs, principal=(k.cx, k.cy))
+        evaluation = evaluate(
+            gt, ingest, depths, gt_depths, rgbs, (k.cx, k.cy), poses.metric, stereo or None
+        )
         if support is not None and gt_depths:
             by = scores_by_support(gt, ingest, depths, gt_depths, support.seen_again_maps)
             evaluation["by_support"] = by or None
@@ -147,7 +160,7 @@ class Depth(Stage):
             baselines=metrics.baselines,
             heldout_psnr=metrics.heldout_psnr,
             heldout_ssim=metrics.heldout_ssim,
-            one_viewpoint=still,
+            one_viewpoint=still and not stereo,
             neighbour_psnr=(metrics.neighbour_average or {}).get("psnr"),
             neighbour_ssim=(metrics.neighbour_average or {}).get("ssim"),
         )

@@ -40,6 +40,14 @@ class FrameEntry(BaseModel):
         None, description="its tool mask (255 = tool), relative to 01_ingest; None: no tool masks"
     )
     tool_share: float | None = Field(None, description="the share of the frame on a tool")
+    stereo: str | None = Field(
+        None,
+        description="its stereo depth (float32 mm, 0 = unknown), relative to 01_ingest; None: "
+        "no right view matched",
+    )
+    stereo_share: float | None = Field(
+        None, description="the share of the field of view the stereo depth covers"
+    )
 
 
 class SourceInfo(BaseModel):
@@ -53,6 +61,14 @@ class KnownPoses(BaseModel):
 
     source: str = Field(description="where they came from")
     c2w: dict[int, list[list[float]]] = Field(description="OpenCV c2w 4x4 by frame index")
+
+
+class StereoInfo(BaseModel):
+    """The rig the stereo depth in stereo/ was matched from."""
+
+    source: str = Field(description="where the right views and the baseline were read")
+    baseline_mm: float = Field(description="distance between the eyes, mm")
+    matcher: str = Field(description="how the depth was matched")
 
 
 class FramesFile(BaseModel):
@@ -77,6 +93,9 @@ class FramesFile(BaseModel):
         "tool)', 'detected'); None: no tool masks.",
     )
     known_poses: KnownPoses | None = None
+    stereo: StereoInfo | None = Field(
+        None, description="The stereo rig whose depth is in stereo/; None: no stereo depth."
+    )
 
 
 class IngestView:
@@ -105,6 +124,12 @@ class IngestView:
     def frame(self, index: int) -> FrameEntry:
         """The entry of endopipe frame `index` (KeyError when ingest did not keep it)."""
         return self._by_index[index]
+
+    @property
+    def has_stereo(self) -> bool:
+        """Whether ingest matched a stereo rig's depth (01_ingest/stereo/; its maps are read by
+        `stereo_depth(i)`)."""
+        return (self.folder / "stereo").is_dir()
 
     def has_frame(self, index: int) -> bool:
         return index in self._by_index
@@ -143,6 +168,15 @@ class IngestView:
         if file is None or not (self.folder / file).is_file():
             return None
         return cv2.imread(str(self.folder / file), cv2.IMREAD_GRAYSCALE) > 127
+
+    def stereo_depth(self, i: int) -> np.ndarray | None:
+        """float32 z-depth in mm (0 = unknown) of frame i from the input's stereo rig, on the
+        working frame's pixel grid; None when ingest matched no right view for it. Metric:
+        a scale the monocular stages cannot have."""
+        file = self.frame(i).stereo
+        if file is None or not (self.folder / file).is_file():
+            return None
+        return np.load(self.folder / file).astype(np.float32, copy=False)
 
     def known_poses(self) -> dict[int, np.ndarray] | None:
         """The input's own poses (not ground truth) by frame index, or None."""

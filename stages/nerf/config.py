@@ -413,6 +413,17 @@ class LossConfig(_Section):
         "model is its true one: AbsRel 0.0343 against 0.0337 (two seeds). A given lens: every "
         "point.",
     )
+    stereo_weight: float = Field(
+        0.1,
+        ge=0,
+        description="Depth from a stereo rig (the ingest stage's stereo/, metric): the same "
+        "Huber as the SfM points' on rays through matched pixels of the training frames. It "
+        "gives a still camera depth and every frame its metric scale (0: off).",
+    )
+    stereo_rays: int = Field(512, ge=1, description="Stereo-depth rays per step.")
+    stereo_per_frame: int = Field(
+        4096, ge=1, description="Matched pixels drawn once per training frame (a fixed draw)."
+    )
     sparse_min_angle: float = Field(
         0.0,
         ge=0,

@@ -35,6 +35,7 @@ from endopipe.stages.nerf.pose_refine import record, refinement_wanted
 from endopipe.stages.nerf.render import pick_device, render_image, save_model
 from endopipe.stages.nerf.scene import SceneBox
 from endopipe.stages.nerf.sparse_depth import SparseDepth, sparse_depth_targets
+from endopipe.stages.nerf.stereo_depth import stereo_depth_targets
 from endopipe.stages.nerf.summary import NerfSummary
 from endopipe.stages.nerf.train import CHECKPOINT, Trainer, auto_threads
 from endopipe.stages.nerf.view import NerfView
@@ -168,6 +169,25 @@ def load_sparse_depth(
         device,
         usable=sparse_usable(poses, k.scaled(ingest.width, ingest.height), lc.sparse_lens_share),
     )
+
+
+def load_stereo_depth(
+    ingest, poses, positions: dict[int, int], box, cfg: NerfConfig, device, log
+) -> SparseDepth | None:
+    """The stereo rig's depth of the training frames as targets, in millimetres: only with
+    metric poses (the poses stage scaled them by the same depth)."""
+    if cfg.loss.stereo_weight <= 0 or not ingest.has_stereo:
+        return None
+    if not poses.metric:
+        log("stereo depth unused: the poses are not metric (too few SfM points had stereo depth)")
+        return None
+    lc = cfg.loss
+    stereo = stereo_depth_targets(
+        ingest, positions, 1.0, box.scale, lc.stereo_per_frame, device, cfg.train.seed
+    )
+    frames = len(torch.unique(stereo.frame)) if stereo else 0
+    log(f"stereo depth: {len(stereo) if stereo else 0} matched-pixel rays from {frames} frames")
+    return stereo
 
 
 def sparse_usable(poses: PosesView, camera: Camera, share: float) -> np.ndarray:
@@ -328,9 +348,10 @@ def set_up_training(
         grey = {i: images[pos[i]].mean(-1) for i in train_ids} if cfg.loss.sparse_refine else None
         sparse = load_sparse_depth(ingest, poses, train_pos, box, cfg, device, grey, log)
         log(sparse_depth_line(sparse, cfg.loss.sparse_min_angle))
+    stereo = load_stereo_depth(ingest, poses, {i: pos[i] for i in train_ids}, box, cfg, device, log)
     refine = refinement_wanted(cfg.pose_refine.mode, poses.file.source)
     trainer = Trainer(
-        cfg, frames, [pos[i] for i in train_ids], prior, box, out, log, sparse, refine
+        cfg, frames, [pos[i] for i in train_ids], prior, box, out, log, sparse, refine, stereo
     )
     trainer.model.set_frame_times(frame_times(ingest, ids))
     return TrainingSetUp(cfg, trainer, prior, ids, k, c2w, train_ids, held_ids, pos, refine)
@@ -341,7 +362,7 @@ class Nerf(Stage):
 
     name = "nerf"
     needs = ("ingest", "poses", "centerline")
-    version = 6  # 6: a dynamic field (space-time planes) where the scene moves
+    version = 7  # 7: a stereo rig's depth supervises the field
     Config = NerfConfig
     Summary = NerfSummary
     View = NerfView
@@ -534,7 +555,7 @@ def loss_figure(rows: list[dict]):
     steps = [r["step"] for r in rows]
     fig = Figure(figsize=(11, 3.6), dpi=90)
     loss_ax, psnr_ax = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
-    for key in ("loss", "photo", "prior", "smooth", "geo", "sparse"):
+    for key in ("loss", "photo", "prior", "smooth", "geo", "sparse", "stereo"):
         vals = [r.get(key) for r in rows]
         if any(v is not None for v in vals):
             loss_ax.plot(steps, [np.nan if v is None else v for v in vals], label=key)

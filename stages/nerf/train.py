@@ -42,6 +42,7 @@ LOG_FIELDS = [
     "geo",
     "distortion",
     "sparse",
+    "stereo",
     "eikonal",
     "pose_reg",
     "pose_deg",
@@ -98,9 +99,11 @@ class Trainer:
         log: Callable[[str], None] = print,
         sparse: SparseDepth | None = None,
         refine_poses: bool = False,
+        stereo: SparseDepth | None = None,
     ) -> None:
         self.cfg, self.frames, self.train_pos, self.box = cfg, frames, train, box
         self.sparse = sparse
+        self.stereo = stereo
         self.out_dir = Path(out_dir)
         self.log = log
         self.device = frames.device
@@ -298,6 +301,11 @@ class Trainer:
         if lc.sparse_weight > 0 and self.sparse is not None:
             terms["sparse"] = self._sparse_term()
             loss = loss + lc.sparse_weight * terms["sparse"]
+        if lc.stereo_weight > 0 and self.stereo is not None:
+            frame, u, v, z = self.stereo.sample(lc.stereo_rays, self.gen)
+            depth = self._depth(*self.frames.rays(frame, u, v), frame)
+            terms["stereo"] = losses.sparse_depth(depth, z)
+            loss = loss + lc.stereo_weight * terms["stereo"]
         if lc.opacity_weight > 0 and self.pb.prior.kind == "none":
             # A scope sees tissue along every ray, within its reach; a lumen prior asks that of
             # the rays that meet its wall already (the wall term), and none of those down it.

@@ -50,6 +50,7 @@ from endopipe.stages.poses.lens import (
     unfold,
 )
 from endopipe.stages.poses.motion import FootageMotion, footage_fps, judge_motion
+from endopipe.stages.poses.stereo_scale import StereoScale, stereo_scale
 from endopipe.stages.poses.summary import PosesSummary
 from endopipe.stages.poses.verdict import (
     FrameVerdict,
@@ -59,7 +60,7 @@ from endopipe.stages.poses.verdict import (
     pick_mapper,
     ranges,
 )
-from endopipe.stages.poses.view import CamerasFile, PosesView
+from endopipe.stages.poses.view import CamerasFile, PosesView, reconstruction_observations
 
 if TYPE_CHECKING:
     from endopipe.stages.poses.colmap_sfm import SfmResult
@@ -72,7 +73,7 @@ class Poses(Stage):
 
     name = "poses"
     needs = ("ingest",)
-    version = 6  # 6: the footage's motion judged first; a still camera gets one fixed pose
+    version = 7  # 7: metric from a stereo rig's depth
     Config = PosesConfig
     Summary = PosesSummary
     View = PosesView
@@ -116,6 +117,11 @@ class Poses(Stage):
         elif gt_poses is not None and cfg.align_to_gt:
             aligned = align_to(est, gt_poses)
             metric = aligned and gt_metric
+        metric_from = "ground truth" if metric else None
+        scaled = None
+        if not metric and ingest.has_stereo:
+            scaled, metric_from = scale_by_stereo(est, ingest, motion, ctx.log)
+            metric = metric_from is not None
         errors = {}
         if gt_poses is not None and len(set(est.c2w) & set(gt_poses)) >= 3:
             m = pose_metrics(est.c2w, gt_poses)
@@ -153,6 +159,8 @@ class Poses(Stage):
             cx=k.cx,
             cy=k.cy,
             metric=metric,
+            metric_from=metric_from,
+            stereo_scale=scaled,
             aligned_to_gt=aligned,
             points=len(est.xyz),
             seconds=time.perf_counter() - t0,
@@ -533,6 +541,41 @@ def align_to(est: Estimate, gt_poses: dict[int, np.ndarray]) -> bool:
     if np.linalg.norm(src - src.mean(0), axis=1).max() < 1e-12:
         return False
     s, R, t = umeyama(src, dst)
+    transform(est, s, R, t)
+    est.info["sim3_scale"] = float(s)
+    return True
+
+
+def scale_by_stereo(
+    est: Estimate, ingest: IngestView, motion: FootageMotion | None, log
+) -> tuple[StereoScale | None, str | None]:
+    """Millimetres from the stereo depth: SfM poses scaled by it at their points; a still
+    camera's one pose is its own frame, already in the stereo depth's millimetres. (None,
+    None) when the points and the stereo depth share too few pixels."""
+    if est.reconstruction is None:
+        if motion is not None and motion.camera == "still":
+            log("metric: a still stereo camera; its frame and depth are in millimetres")
+            return None, "stereo"
+        log("metric scale: no SfM points to scale by the stereo depth; the poses stay unscaled")
+        return None, None
+    obs = reconstruction_observations(est.reconstruction, ingest.index_by_name(), set(est.c2w))
+    k = est.camera
+    if obs is not None and (k.width, k.height) != (ingest.width, ingest.height):
+        obs.uv = (obs.uv + 0.5) * np.array([ingest.width / k.width, ingest.height / k.height]) - 0.5
+    scaled = stereo_scale(obs, est.c2w, ingest.stereo_depth, (ingest.height, ingest.width))
+    if scaled is None:
+        log("metric scale: too few SfM points have stereo depth; the poses stay unscaled")
+        return None, None
+    transform(est, scaled.mm_per_unit, np.eye(3), np.zeros(3))
+    log(
+        f"metric scale from stereo: {scaled.mm_per_unit:.4g} mm per SfM unit, from "
+        f"{scaled.points} points (median deviation {100 * scaled.spread:.1f}%)"
+    )
+    return scaled, "stereo"
+
+
+def transform(est: Estimate, s: float, R: np.ndarray, t: np.ndarray) -> None:
+    """Move poses, points and the COLMAP model by the similarity x -> s R x + t."""
     est.c2w = {i: apply_sim3(s, R, t, c) for i, c in est.c2w.items()}
     if len(est.xyz):
         est.xyz = s * est.xyz @ R.T + t
@@ -540,8 +583,6 @@ def align_to(est: Estimate, gt_poses: dict[int, np.ndarray]) -> bool:
         import pycolmap
 
         est.reconstruction.transform(pycolmap.Sim3d(s, pycolmap.Rotation3d(R), t))
-    est.info["sim3_scale"] = float(s)
-    return True
 
 
 def write_outputs(

@@ -6,6 +6,7 @@ from __future__ import annotations
 from endopipe.pipeline.stage import Summary
 from endopipe.stages.poses.lens import LensRefit
 from endopipe.stages.poses.motion import FootageMotion
+from endopipe.stages.poses.stereo_scale import StereoScale
 
 
 class PosesSummary(Summary):
@@ -57,5 +58,11 @@ class PosesSummary(Summary):
     lens_refit: LensRefit | None = None
     #: an estimated lens: how far from the principal point (px) its features reach
     fitted_radius_px: float | None = None
+    #: where the metric scale came from: "ground truth" (aligned to it), "stereo" (the rig's
+    #: depth at the SfM points, or a still camera's own frame in mm), None: not metric
+    metric_from: str | None = None
+    #: the SfM poses scaled by the stereo depth: millimetres per SfM unit and how well one
+    #: scale explains the points (None: not scaled by stereo)
+    stereo_scale: StereoScale | None = None
     #: whether the camera moved and the scene held still, judged before SfM (None: not judged)
     motion: FootageMotion | None = None

@@ -212,39 +212,48 @@ class PosesView:
             return None
         import pycolmap  # cv2 is already imported through the `endopipe.stages` package
 
-        rec = pycolmap.Reconstruction(str(folder))
-        angles = triangulation_angles(rec)
-        rows: list[tuple] = []
-        for img in rec.images.values():
-            idx = index_of.get(Path(img.name).name)
-            if idx is None or idx not in self.c2w:
-                continue
-            for p2 in img.points2D:
-                if p2.has_point3D():
-                    pt = rec.points3D[p2.point3D_id]
-                    u, v = p2.xy
-                    rows.append(
-                        (
-                            idx,
-                            u - 0.5,
-                            v - 0.5,
-                            *pt.xyz,
-                            pt.track.length(),
-                            pt.error,
-                            angles[p2.point3D_id],
-                        )
-                    )
-        if not rows:
-            return None
-        a = np.array(rows, dtype=np.float64)
-        return SparseObservations(
-            frame=a[:, 0].astype(np.int64),
-            uv=a[:, 1:3],
-            xyz=a[:, 3:6],
-            track=a[:, 6],
-            error=a[:, 7],
-            angle=a[:, 8],
+        return reconstruction_observations(
+            pycolmap.Reconstruction(str(folder)), index_of, set(self.c2w)
         )
+
+
+def reconstruction_observations(
+    rec: pycolmap.Reconstruction, index_of: dict[str, int], registered: set[int]
+) -> SparseObservations | None:
+    """A model's 2D-3D observations in the frames of `registered` (frame indices; `index_of`
+    maps an image file name to its index); None when it has none."""
+    angles = triangulation_angles(rec)
+    rows: list[tuple] = []
+    for img in rec.images.values():
+        idx = index_of.get(Path(img.name).name)
+        if idx is None or idx not in registered:
+            continue
+        for p2 in img.points2D:
+            if p2.has_point3D():
+                pt = rec.points3D[p2.point3D_id]
+                u, v = p2.xy
+                rows.append(
+                    (
+                        idx,
+                        u - 0.5,
+                        v - 0.5,
+                        *pt.xyz,
+                        pt.track.length(),
+                        pt.error,
+                        angles[p2.point3D_id],
+                    )
+                )
+    if not rows:
+        return None
+    a = np.array(rows, dtype=np.float64)
+    return SparseObservations(
+        frame=a[:, 0].astype(np.int64),
+        uv=a[:, 1:3],
+        xyz=a[:, 3:6],
+        track=a[:, 6],
+        error=a[:, 7],
+        angle=a[:, 8],
+    )
 
 
 def triangulation_angles(rec: pycolmap.Reconstruction) -> dict[int, float]:

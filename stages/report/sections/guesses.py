@@ -17,6 +17,7 @@ if TYPE_CHECKING:
 GUESS_LABELS = {
     "radial": ("radial guess", "the image centre is far"),
     "brightness": ("brightness guess", "inverse-square shading, depth = 1/√brightness"),
+    "stereo": ("stereo matcher", "the rig's own depth, left-right checked"),
 }
 
 
@@ -84,10 +85,16 @@ def ours(metrics: DepthMetrics) -> ProtocolScores:
     )
 
 
+#: With metric poses: the depth as it is, in millimetres.
+UNSCALED_ROW = Headline(
+    "AbsRel", "no scaling (metric poses)", False, lambda p: p.unscaled, lambda s: s.abs_rel
+)
+
+
 def headline_rows(scores: ProtocolScores) -> tuple[Headline, ...]:
     """The rows these scores support (none without a protocol block)."""
     if scores.median_scaled is not None:
-        return METRIC_ROWS
+        return METRIC_ROWS + ((UNSCALED_ROW,) if scores.unscaled is not None else ())
     if scores.affine_invariant is not None:
         return RELATIVE_ROWS
     return ()
