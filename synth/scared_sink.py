@@ -80,7 +80,9 @@ class ScaredSink:
             self._stream(image.shape[1], image.shape[0])
             points = backproject(self.camera, depth).reshape(depth.shape + (3,))
             points[depth <= 0] = 0.0
-            tifffile.imwrite(str(self.out / KEYFRAME_DEPTH), points.astype(np.float32))
+            tifffile.imwrite(
+                str(self.out / KEYFRAME_DEPTH), points.astype(np.float32), photometric="rgb"
+            )
         frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="rgb24")
         frame.pts = self.count
         for packet in self.stream.encode(frame):
