@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from endopipe.pipeline.stage import StageConfig
 
@@ -215,6 +215,56 @@ class KeyframeConfig(BaseModel):
     )
 
 
+class StereoConfig(BaseModel):
+    """Metric depth from the input's rectified right views (stereo.py), when it has them."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    mode: Literal["auto", "on", "off"] = Field(
+        "auto",
+        description="auto: match when the input comes with right views and a baseline (Hamlyn's "
+        "image02/); on: the same, and an input without them is an error; off: never.",
+    )
+    min_depth_mm: float = Field(
+        4.0,
+        gt=0,
+        description="The nearest depth searched for: sets the disparity range (fx x baseline / "
+        "this, at most half the image width).",
+    )
+    min_disparity_px: float = Field(
+        5.0,
+        gt=0,
+        description="Matches under this disparity (px at the working size) are left unknown: "
+        "too far for the baseline to measure well (half a pixel off is 10% of the depth there).",
+    )
+    block_size: int = Field(5, ge=1, le=11, description="StereoSGBM's matched block, px (odd).")
+    uniqueness: int = Field(
+        10,
+        ge=0,
+        le=100,
+        description="StereoSGBM's uniqueness ratio, %: the best match must beat the second by it.",
+    )
+    lr_max_diff_px: float = Field(
+        1.0,
+        ge=0,
+        description="Left-right check: a pixel keeps its depth when the right image's match "
+        "points back within this many px.",
+    )
+    speckle_window: int = Field(
+        100, ge=0, description="Disparity blobs smaller than this (px) are noise, left unknown."
+    )
+    speckle_range: int = Field(
+        2, ge=0, description="Disparity spread (px) within which neighbours form one blob."
+    )
+
+    @field_validator("block_size")
+    @classmethod
+    def _odd(cls, v: int) -> int:
+        if v % 2 == 0:
+            raise ValueError("must be odd")
+        return v
+
+
 class IngestConfig(StageConfig):
     stride: int = Field(1, ge=1, description="Keep every n-th frame of the input.")
     max_frames: int | None = Field(
@@ -272,3 +322,7 @@ class IngestConfig(StageConfig):
         description="Surgical tools: their pixels leave the usable mask (the photometric loss).",
     )
     contact_sheet_frames: int = Field(16, ge=1, description="Frames shown in contact_sheet.png.")
+    stereo: StereoConfig = Field(
+        default_factory=StereoConfig,
+        description="Metric depth per frame from the input's right views (01_ingest/stereo/).",
+    )

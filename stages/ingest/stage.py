@@ -14,6 +14,7 @@ from endopipe.stages.camera import Camera
 from endopipe.stages.ingest.config import IngestConfig
 from endopipe.stages.ingest.masks import combine, fov_mask_for_sequence, specular_mask
 from endopipe.stages.ingest.selection import Selection, select_frames
+from endopipe.stages.ingest.stereo_frames import MATCHER, FrameStereo
 from endopipe.stages.ingest.summary import IngestSummary
 from endopipe.stages.ingest.tool_frames import FrameTools
 from endopipe.stages.ingest.view import (
@@ -24,6 +25,7 @@ from endopipe.stages.ingest.view import (
     IngestView,
     KnownPoses,
     SourceInfo,
+    StereoInfo,
 )
 from endopipe.stages.io.ground_truth import Coverage, coverage
 from endopipe.stages.io.input_source import Frame, InputSource
@@ -37,7 +39,7 @@ class Ingest(Stage):
 
     name = "ingest"
     needs = ()
-    version = 4  # 4: tool masks (given or detected) in tools/, their polarity; known poses
+    version = 5  # 5: stereo depth from the input's right views in stereo/; 4: tool masks
     Config = IngestConfig
     Summary = IngestSummary
     View = IngestView
@@ -57,7 +59,10 @@ class Ingest(Stage):
         (ctx.out / "masks").mkdir()
         cv2.imwrite(str(ctx.out / FOV_FILE), fov)
         entries, spec_fracs, tool_fracs = [], [], []
+        stereo_shares: list[float | None] = []
         tools = FrameTools(source.tool_masks, cfg.tools)
+        intrinsics = source_intrinsics(source, selection.source_size, size)
+        stereo = FrameStereo(source.stereo, intrinsics, cfg.stereo)
         if tools.active:
             (ctx.out / "tools").mkdir()
         with ctx.progress("masks", total=len(images)) as advance:
@@ -67,6 +72,8 @@ class Ingest(Stage):
                 name = f"{i:06d}.png"
                 cv2.imwrite(str(ctx.out / "frames" / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
                 usable = combine(fov, spec)
+                depth = stereo.of(frame.source_index, rgb, usable) if stereo.active else None
+                stereo_shares.append(None if depth is None else stereo.share(depth, fov))
                 tool = tools.of(frame.source_index, rgb, fov, size)
                 if tool is not None:
                     usable[tool] = 0
@@ -82,10 +89,11 @@ class Ingest(Stage):
                         mask=f"masks/{name}",
                         tool=f"tools/{name}" if tool is not None else None,
                         tool_share=float(tool.mean()) if tool is not None else None,
+                        stereo=None if depth is None else stereo.write(ctx.out, name[:-4], depth),
+                        stereo_share=stereo_shares[-1],
                     )
                 )
                 advance()
-        intrinsics = source_intrinsics(source, selection.source_size, size)
         frames_file = FramesFile(
             frames=entries,
             intrinsics=intrinsics,
@@ -98,6 +106,7 @@ class Ingest(Stage):
             tools=tools.said if tools.active else None,
             known_poses=known_poses(source, entries),
             dropped_frames=selection.dropped_frames or {},
+            stereo=stereo_info(stereo),
         )
         write_json(ctx.out / FRAMES_FILE, frames_file.model_dump(mode="json"))
         write_contact_sheet(
@@ -109,6 +118,8 @@ class Ingest(Stage):
             ctx.log("the case has no intrinsics.json: COLMAP estimates the camera")
         if tools.active:
             ctx.log(tools.line(tool_fracs))
+        if stereo.active or source.stereo is not None:
+            ctx.log(stereo.line(stereo_shares))
         poses_said = known_poses_said(frames_file.known_poses)
         if poses_said:
             ctx.log(poses_said)
@@ -131,6 +142,10 @@ class Ingest(Stage):
             mean_tool_fraction=float(np.mean(tool_fracs)) if tools.active else None,
             max_tool_fraction=float(max(tool_fracs)) if tools.active else None,
             known_poses=poses_said,
+            stereo=stereo.pairs.source if stereo.active and stereo.pairs else None,
+            stereo_baseline_mm=stereo.pairs.baseline_mm if stereo.active and stereo.pairs else None,
+            stereo_coverage=stereo_shares if stereo.active else None,
+            stereo_mean_coverage=mean_share(stereo_shares) if stereo.active else None,
             has_intrinsics=intrinsics is not None,
             has_ground_truth=source.gt_dir is not None,
             gt_frames_without_depth=gt.frames_without_depth,
@@ -152,6 +167,21 @@ def ground_truth_coverage(
     for line in found.warnings:
         warn(ctx, line)
     return found
+
+
+def stereo_info(stereo: FrameStereo) -> StereoInfo | None:
+    """frames.json's account of the rig its stereo/ depth was matched from."""
+    if not stereo.active or stereo.pairs is None:
+        return None
+    return StereoInfo(
+        source=stereo.pairs.source, baseline_mm=stereo.pairs.baseline_mm, matcher=MATCHER
+    )
+
+
+def mean_share(shares: list[float | None]) -> float | None:
+    """The mean over the frames that were matched (None when none was)."""
+    got = [s for s in shares if s is not None]
+    return float(np.mean(got)) if got else None
 
 
 def known_poses(source: InputSource, entries: list[FrameEntry]) -> KnownPoses | None:

@@ -28,6 +28,13 @@ class IngestSummary(Summary):
     max_tool_fraction: float | None = None
     #: poses the input came with that are not ground truth (EndoNeRF's): what they say
     known_poses: str | None = None
+    #: stereo depth from the input's right views (01_ingest/stereo/): where the rig was read,
+    #: its baseline, and per kept frame (in frame order) the share of the field of view it
+    #: covers (None: no right view for that frame); all None without stereo depth
+    stereo: str | None = None
+    stereo_baseline_mm: float | None = None
+    stereo_coverage: list[float | None] | None = None
+    stereo_mean_coverage: float | None = None
     has_intrinsics: bool
     has_ground_truth: bool
     gt_frames_without_depth: int = 0  # kept frames the ground truth has no depth for
