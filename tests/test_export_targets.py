@@ -317,3 +317,28 @@ def test_for_and_axes_are_one_choice(case, tmp_path) -> None:
     with pytest.raises(EndopipeError, match="resolution source writes"):
         export.export_case(case, "colmap", tmp_path / "d", folders=folders, resolution="source")
     assert not any(p.name.startswith(("a", "b", "c", "d")) for p in tmp_path.iterdir())
+
+
+def test_nerfstudio_depth_pngs_for_readers_without_npy(case, surface, tmp_path) -> None:
+    """nerfstudio-project/nerfstudio, nerfstudio/data/utils/data_utils.py
+    `get_depth_image_from_path` before its .npy support: cv2.imread(IMREAD_ANYDEPTH) x 1e-3
+    (the default depth_unit_scale_factor) x the dataparser's scale (1 here); transforms.json's
+    OpenGL c2w, fl_x / cx in its pixel-edge convention: the PNGs land on the surface."""
+    out = tmp_path / "ns"
+    export.export_case(case, "nerfstudio", out, folders=build_pipeline().folders(case))
+    meta = json.loads((out / "transforms_png.json").read_text())
+    factor = meta["endopipe"]["depth_unit_scale_factor"]
+    # the colon's deepest (about 225 mm) does not fit in um counts: 0.01 mm, factor 0.01, said
+    assert factor == pytest.approx(1e-2)
+    points = []
+    for fr in meta["frames"]:
+        depth = cv2.imread(str(out / fr["depth_file_path"]), cv2.IMREAD_ANYDEPTH) * factor
+        npy = out / "depth" / Path(fr["depth_file_path"]).with_suffix(".npy").name
+        assert np.allclose(depth, np.load(npy) * 1e-3, atol=factor)  # the .npy's depth
+        h, w = depth.shape
+        u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)  # pixel edges: centres +0.5
+        x, y = (u - meta["cx"]) / meta["fl_x"], (v - meta["cy"]) / meta["fl_y"]
+        cam = np.stack([x * depth, -y * depth, -depth], -1)[depth > 0]  # OpenGL: y up, z back
+        c2w = np.asarray(fr["transform_matrix"])
+        points.append(cam @ c2w[:3, :3].T + c2w[:3, 3])
+    on_one_surface(points, surface, 1.0)
