@@ -342,3 +342,32 @@ def test_nerfstudio_depth_pngs_for_readers_without_npy(case, surface, tmp_path) 
         c2w = np.asarray(fr["transform_matrix"])
         points.append(cam @ c2w[:3, :3].T + c2w[:3, 3])
     on_one_surface(points, surface, 1.0)
+
+
+def test_reframe_centres_the_principal_point_or_refuses() -> None:
+    from endopipe.export.reframe import reframe
+    from endopipe.pipeline.errors import InputError
+    from endopipe.stages.camera import Camera
+
+    k = Camera(width=64, height=48, fx=50.0, fy=52.0, cx=31.0, cy=24.5)
+    r = reframe(k, (640, 512), (319.5, 255.5))
+    assert r.camera.fx == r.camera.fy and (r.camera.cx, r.camera.cy) == (319.5, 255.5)
+    # the frame's principal point lands on the target's, and every target pixel is inside it
+    assert r.sx * k.cx + r.tx == pytest.approx(319.5) and r.sy * k.cy + r.ty == pytest.approx(255.5)
+    assert (0.5 - 0.5 - r.tx) / r.sx >= -0.5 - 1e-9 and (639 + 0.5 - r.tx) / r.sx <= 63.5 + 1e-9
+    with pytest.raises(InputError, match="keeps"):
+        reframe(k.model_copy(update={"cx": 4.0}), (640, 512))
+
+
+def test_export_command_for_a_target(case, tmp_path, capsys) -> None:
+    out = tmp_path / "cli"
+    assert (
+        main(
+            ["export", str(case), "--format", "endonerf", "--for", "deform3dgs", "--out", str(out)]
+        )
+        == 0
+    )
+    said = capsys.readouterr().out
+    assert "for deform3dgs" in said and "stereo_" in said
+    assert json.loads((out / "export.json").read_text())["for"] == "deform3dgs"
+    assert main(["export", str(case), "--format", "endonerf", "--for", "gs"]) == 2
