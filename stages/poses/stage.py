@@ -50,8 +50,8 @@ from endopipe.stages.poses.lens import (
     unfold,
 )
 from endopipe.stages.poses.motion import FootageMotion, footage_fps, judge_motion
-from endopipe.stages.poses.stereo_scale import StereoScale, stereo_scale
-from endopipe.stages.poses.summary import PosesSummary
+from endopipe.stages.poses.stereo_scale import stereo_scale
+from endopipe.stages.poses.summary import PosesSummary, StereoScale
 from endopipe.stages.poses.verdict import (
     FrameVerdict,
     PoseVerdict,

@@ -13,21 +13,14 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
-from pydantic import BaseModel
+
+from endopipe.stages.poses.summary import StereoScale
 
 if TYPE_CHECKING:
     from endopipe.stages.poses.view import SparseObservations
 
 #: Fewer matched observations than this: no scale (a median of a handful is a guess).
 MIN_POINTS = 30
-
-
-class StereoScale(BaseModel):
-    """Millimetres per SfM unit, from the stereo depth at the SfM points."""
-
-    mm_per_unit: float
-    points: int  # observations with both depths
-    spread: float  # median |ratio / scale - 1|: how far one scale explains the points
 
 
 def stereo_scale(

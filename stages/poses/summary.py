@@ -3,10 +3,19 @@
 
 from __future__ import annotations
 
+from pydantic import BaseModel
+
 from endopipe.pipeline.stage import Summary
 from endopipe.stages.poses.lens import LensRefit
 from endopipe.stages.poses.motion import FootageMotion
-from endopipe.stages.poses.stereo_scale import StereoScale
+
+
+class StereoScale(BaseModel):
+    """Millimetres per SfM unit, from the stereo depth at the SfM points."""
+
+    mm_per_unit: float
+    points: int  # observations with both depths
+    spread: float  # median |ratio / scale - 1|: how far one scale explains the points
 
 
 class PosesSummary(Summary):
