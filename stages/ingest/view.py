@@ -129,7 +129,7 @@ class IngestView:
     def has_stereo(self) -> bool:
         """Whether ingest matched a stereo rig's depth (01_ingest/stereo/; its maps are read by
         `stereo_depth(i)`)."""
-        return (self.folder / "stereo").is_dir()
+        return self.file.stereo is not None
 
     def has_frame(self, index: int) -> bool:
         return index in self._by_index
