@@ -257,6 +257,12 @@ class StereoConfig(BaseModel):
         2, ge=0, description="Disparity spread (px) within which neighbours form one blob."
     )
 
+    @field_validator("mode", mode="before")
+    @classmethod
+    def _yaml_words(cls, v: object) -> object:
+        """`--set ingest.stereo.mode=off` reaches here as YAML's false (and on as true)."""
+        return {False: "off", True: "on"}.get(v, v) if isinstance(v, bool) else v
+
     @field_validator("block_size")
     @classmethod
     def _odd(cls, v: int) -> int:
