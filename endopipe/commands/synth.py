@@ -62,7 +62,9 @@ def synth_case(
         raise EndopipeError(f"synth layout: {layout} is none of {', '.join(LAYOUTS)}")
     sink = other_layout(layout, cfg.stereo_baseline_mm)
     if stereo and (sink is None or not sink.takes_right):
-        raise EndopipeError(f"synth --stereo: the {layout} layout has no right eye; use hamlyn")
+        raise EndopipeError(
+            f"synth --stereo: the {layout} layout has no right eye (hamlyn and scared have one)"
+        )
     ensure_writable(out_dir.parent if out_dir.parent != Path("") else Path("."))
     summary = write_synth(out_dir, cfg, sink)
     moving = ""
