@@ -223,10 +223,12 @@ def test_c3vd_numeric_order_and_pose_lines(tmp_path: Path) -> None:
 
 
 def test_c3vd_depth_encoding_helpers() -> None:
-    mm = np.array([[0.0, 0.5, 37.123, 100.0]])
+    mm = np.array([[0.0, 0.5, 37.123, 99.99]])
     back = c3vd.decode_depth(c3vd.encode_depth(mm))
     assert np.abs(back - mm).max() <= 100.0 / 65535.0 / 2 + 1e-6
+    # full scale is C3VD's clamp (farther than 100 mm, or no surface): unknown, not 100 mm
     assert c3vd.encode_depth(np.array([100.0]))[0] == 65535
+    assert c3vd.decode_depth(np.array([65535], np.uint16))[0] == 0.0
 
 
 # ---------------------------------------------------------------- SimCol3D

@@ -121,3 +121,9 @@ def test_the_detector_on_real_frames_with_and_without_tools() -> None:
             rgb, np.full(rgb.shape[:2], 255, np.uint8), ToolsConfig()
         ).mean()
     assert 0.1 < shares["cutting"] < 0.25 and shares["c3vd"] == 0.0
+
+
+def test_detection_is_turned_off_by_the_word_off() -> None:
+    """`--set ingest.tools.detect=off` reaches the config as YAML's false."""
+    assert ToolsConfig.model_validate({"detect": False}).detect == "off"
+    assert ToolsConfig.model_validate({"detect": "auto"}).detect == "auto"
