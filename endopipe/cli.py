@@ -162,6 +162,24 @@ def run(
     intrinsics: Annotated[
         Path | None, typer.Option(help="intrinsics.json for the input's frames.")
     ] = None,
+    right: Annotated[
+        Path | None,
+        typer.Option(
+            help="Folder of the rectified right eye's frames, matched to the left frames by the "
+            "number in their names (a video's frame i: the i-th image); needs --baseline-mm."
+        ),
+    ] = None,
+    baseline_mm: Annotated[
+        float | None,
+        typer.Option(help="Distance between the two eyes of --right's rig, mm."),
+    ] = None,
+    depth_prior: Annotated[
+        Path | None,
+        typer.Option(
+            help="Folder of depth maps made elsewhere (.npy, 16-bit .png, .tiff), matched by "
+            "the number in their names: a relative prior for the field, scored beside ours."
+        ),
+    ] = None,
     from_stage: Annotated[
         str | None, typer.Option("--from", help="Re-run from this stage.")
     ] = None,
@@ -178,6 +196,7 @@ def run(
     (ingest.keyframes) whose keyframes fill more than one window runs as a recording: windows
     through the executor, joined into one trajectory."""
     from endopipe.commands.run import run_case
+    from endopipe.stages.io.added import AddedInputs
 
     run_case(
         build_pipeline(),
@@ -197,6 +216,7 @@ def run(
         recording=recording,
         execution=execution,
         case_fn=batch_case,
+        added=AddedInputs(right=right, baseline_mm=baseline_mm, depth_prior=depth_prior),
     )
 
 

@@ -20,8 +20,8 @@ from endopipe.pipeline.executors import limit_threads
 from endopipe.pipeline.runner import Pipeline, RunRecord, read_runs
 from endopipe.pipeline.stage import CaseInfo
 
-#: prepare_case(input, workdir, name, intrinsics, input_format) -> the case folder.
-PrepareCase = Callable[[Path, Path, str | None, Path | None, str | None], Path]
+#: prepare_case(input, workdir, name, intrinsics, input_format, added) -> the case folder.
+PrepareCase = Callable[[Path, Path, str | None, Path | None, str | None, Any], Path]
 
 
 def process_case(
@@ -34,6 +34,7 @@ def process_case(
     fresh (status "ok"), the input cannot be used ("failed"), or something would run
     ("pending").
     """
+    from endopipe.stages.io.added import AddedInputs
     from endopipe.stages.io.sources import open_input
 
     if task.threads:
@@ -42,6 +43,11 @@ def process_case(
     row = CaseRow(case=task.name, status="failed", reader=task.reader, input=task.input)
     workdir, path = Path(task.workdir), Path(task.input)
     intrinsics = Path(task.intrinsics) if task.intrinsics else None
+    added = AddedInputs(
+        right=Path(task.right) if task.right else None,
+        baseline_mm=task.baseline_mm,
+        depth_prior=Path(task.depth_prior) if task.depth_prior else None,
+    )
     case_dir = workdir / task.name
     try:
         pipe = build_pipeline()  # imports the stages: not counted in the case's wall time
@@ -51,7 +57,7 @@ def process_case(
         }
         selected = [s.name for s in pipe.selection(task.until)]
         row.failed_stage = selected[0]  # reading the input is the first stage's job
-        source = open_input(path, intrinsics, format=task.reader)
+        source = open_input(path, intrinsics, format=task.reader, added=added)
         gt = source.ground_truth()
         row.gt_kind = gt.kind if gt is not None else ""
         row.failed_stage = None
@@ -65,7 +71,7 @@ def process_case(
                 return row
             row.stages_cached = selected
         else:
-            case_dir = prepare_case(path, workdir, task.name, intrinsics, task.reader)
+            case_dir = prepare_case(path, workdir, task.name, intrinsics, task.reader, added)
             record = pipe.run(
                 case_dir,
                 configs,

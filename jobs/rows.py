@@ -19,6 +19,9 @@ class CaseTask(BaseModel):
     configs: dict[str, dict[str, Any]]
     until: str | None = None
     intrinsics: str | None = None  # intrinsics.json for the input's frames (--intrinsics)
+    right: str | None = None  # the right eye's frames (--right)
+    baseline_mm: float | None = None  # their baseline (--baseline-mm)
+    depth_prior: str | None = None  # depth maps made elsewhere (--depth-prior)
     from_stage: str | None = None  # re-run from this stage (--from), fresh or not
     force: bool = False  # ignore the cache (--force)
     threads: int | None = None

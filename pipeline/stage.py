@@ -72,6 +72,11 @@ class CaseInfo(BaseModel):
     input_digest: str
     intrinsics_file: str | None = None
     gt_dir: str | None = None
+    #: Files the user gave beside the input that ingest reads with it (`--right FOLDER
+    #: --baseline-mm B`, `--depth-prior FOLDER`); None: not given.
+    right: str | None = None
+    baseline_mm: float | None = None
+    depth_prior: str | None = None
 
     @classmethod
     def load(cls, case_dir: Path) -> CaseInfo:

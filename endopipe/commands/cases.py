@@ -5,8 +5,12 @@ Only the checks are imported eagerly: the readers (cv2, av) load when a case is 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from endopipe.pipeline.errors import EndopipeError
+
+if TYPE_CHECKING:
+    from endopipe.stages.io.added import AddedInputs
 
 
 def case_name_for(input_path: Path) -> str:
@@ -26,13 +30,15 @@ def prepare_case(
     name: str | None,
     intrinsics: Path | None,
     input_format: str | None = None,
+    added: AddedInputs | None = None,
 ) -> Path:
-    """Check the input, then create the case folder and its case.json (only then)."""
+    """Check the input, then create the case folder and its case.json (only then). `added`:
+    the right views and depth prior given beside the input, recorded in case.json."""
     from endopipe.pipeline.runner import ensure_writable
     from endopipe.pipeline.stage import CaseInfo, write_json
     from endopipe.stages.io.sources import open_input
 
-    source = open_input(input_path, intrinsics, format=input_format)
+    source = open_input(input_path, intrinsics, format=input_format, added=added)
     digest = source.digest()
     ensure_writable(workdir)
     case_dir = workdir / (name or case_name_for(input_path))
@@ -44,6 +50,11 @@ def prepare_case(
         input_digest=digest,
         intrinsics_file=str(intrinsics.resolve()) if intrinsics else None,
         gt_dir=str(source.gt_dir) if source.gt_dir else None,
+        right=str(added.right.expanduser().resolve()) if added and added.right else None,
+        baseline_mm=added.baseline_mm if added else None,
+        depth_prior=(
+            str(added.depth_prior.expanduser().resolve()) if added and added.depth_prior else None
+        ),
     )
     case_json = case_dir / "case.json"
     if not case_json.exists() or CaseInfo.load(case_dir) != info:

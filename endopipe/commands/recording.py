@@ -76,6 +76,9 @@ def run_recording(
             configs={name: cfg.model_dump(mode="json") for name, cfg in configs.items()},
             until="centerline",
             intrinsics=info.intrinsics_file,
+            right=info.right,
+            baseline_mm=info.baseline_mm,
+            depth_prior=info.depth_prior,
             from_stage=from_stage if from_stage in ("ingest", "poses", "centerline") else None,
             force=force,
         )
@@ -99,6 +102,9 @@ def run_recording(
             configs=window_configs(configs, frames, shared),
             until=until,
             intrinsics=info.intrinsics_file,
+            right=info.right,
+            baseline_mm=info.baseline_mm,
+            depth_prior=info.depth_prior,
             from_stage=from_stage,
             force=force,
         )

@@ -17,6 +17,7 @@ from endopipe.pipeline.stage import CaseInfo
 if TYPE_CHECKING:
     from endopipe.pipeline.runner import Pipeline
     from endopipe.pipeline.stage import StageConfig
+    from endopipe.stages.io.added import AddedInputs
 
 
 def reopen_case(
@@ -30,22 +31,29 @@ def reopen_case(
     until: str | None,
     from_stage: str | None,
     force: bool,
+    added: AddedInputs | None = None,
 ) -> Path:
     """The case folder, ready for `pipe.run`: its input re-read and case.json refreshed, or,
     when the input is gone, left as it is, provided no stage that reads the input must re-run.
 
     `workdir` and `name` are what the user gave explicitly (None: not given); another place
-    than the folder's own is refused rather than silently ignored."""
+    than the folder's own is refused rather than silently ignored. `added` (`--right`,
+    `--depth-prior`): given again, it replaces what case.json recorded; else that is kept."""
     folder = case_dir.resolve() if case_dir.name in ("", ".", "..") else case_dir
     info = _case_info(folder)
     _refuse_elsewhere(folder, info, workdir, name)
     source = Path(info.input)
     if source.exists():
+        from endopipe.stages.io.added import AddedInputs
         from endopipe.stages.io.sources import FORMATS
 
         recorded = Path(info.intrinsics_file) if info.intrinsics_file else None
         reader = info.kind if info.kind in FORMATS else None
-        return prepare_case(source, folder.parent, folder.name, intrinsics or recorded, reader)
+        if added is None or not added.given:
+            added = AddedInputs.of_case(info)
+        return prepare_case(
+            source, folder.parent, folder.name, intrinsics or recorded, reader, added
+        )
     _refuse_without_input(pipe, folder, info, configs, intrinsics, until, from_stage, force)
     return folder
 

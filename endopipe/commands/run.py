@@ -18,6 +18,7 @@ if TYPE_CHECKING:
     from endopipe.jobs.rows import CaseRow, CaseTask
     from endopipe.pipeline.runner import Pipeline, RunRecord
     from endopipe.recording.options import RecordingOptions
+    from endopipe.stages.io.added import AddedInputs
 
 
 def run_case(
@@ -39,11 +40,13 @@ def run_case(
     recording: RecordingOptions | None = None,
     execution: Execution | None = None,
     case_fn: Callable[[CaseTask], CaseRow] | None = None,
+    added: AddedInputs | None = None,
 ) -> None:
     """Run INPUT (a video, an image folder, an input case folder, or a case folder an earlier
     run made, which then continues where it is, with its last run's settings) through `pipe`.
     A recording (ingest kept frames by content, more than one window of them) goes on through
-    windows with `case_fn`, each window a case, joined into one trajectory."""
+    windows with `case_fn`, each window a case, joined into one trajectory. `added`: the right
+    views and depth prior given beside the input (`--right`, `--depth-prior`)."""
     from endopipe.commands.resume import reopen_case
     from endopipe.pipeline.config import RUN_CONFIG, load_config
     from endopipe.pipeline.errors import ConfigError
@@ -73,12 +76,13 @@ def run_case(
             workdir=workdir if workdir_given else None,
             name=name,
             intrinsics=intrinsics,
+            added=added,
             until=until,
             from_stage=from_stage,
             force=force,
         )
     else:
-        case_dir = prepare_case(input_path, workdir, name, intrinsics)
+        case_dir = prepare_case(input_path, workdir, name, intrinsics, added=added)
     if (
         recording is not None
         and execution is not None

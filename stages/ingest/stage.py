@@ -13,6 +13,7 @@ from endopipe.pipeline.stage import Stage, StageContext, write_json
 from endopipe.stages.camera import Camera
 from endopipe.stages.ingest.config import IngestConfig
 from endopipe.stages.ingest.masks import combine, fov_mask_for_sequence, specular_mask
+from endopipe.stages.ingest.prior_frames import FramePrior
 from endopipe.stages.ingest.selection import Selection, select_frames
 from endopipe.stages.ingest.stereo_frames import MATCHER, FrameStereo
 from endopipe.stages.ingest.summary import IngestSummary
@@ -27,6 +28,7 @@ from endopipe.stages.ingest.view import (
     SourceInfo,
     StereoInfo,
 )
+from endopipe.stages.io.added import AddedInputs
 from endopipe.stages.io.ground_truth import Coverage, coverage
 from endopipe.stages.io.input_source import Frame, InputSource
 from endopipe.stages.io.sources import open_input
@@ -39,7 +41,7 @@ class Ingest(Stage):
 
     name = "ingest"
     needs = ()
-    version = 5  # 5: stereo depth from the input's right views in stereo/; 4: tool masks
+    version = 6  # 6: the user's depth prior in depth_prior/; 5: stereo depth in stereo/
     Config = IngestConfig
     Summary = IngestSummary
     View = IngestView
@@ -50,6 +52,7 @@ class Ingest(Stage):
             Path(ctx.case.input),
             Path(ctx.case.intrinsics_file) if ctx.case.intrinsics_file else None,
             format=ctx.case.kind,
+            added=AddedInputs.of_case(ctx.case),
         )
         selection = select_frames(source, cfg, ctx)
         frames, dropped, size = selection.frames, selection.dropped, selection.size
@@ -63,6 +66,8 @@ class Ingest(Stage):
         tools = FrameTools(source.tool_masks, cfg.tools)
         intrinsics = source_intrinsics(source, selection.source_size, size)
         stereo = FrameStereo(source.stereo, intrinsics, cfg.stereo)
+        prior = FramePrior(source.depth_prior, selection.source_size)
+        prior_frames = 0
         if tools.active:
             (ctx.out / "tools").mkdir()
         with ctx.progress("masks", total=len(images)) as advance:
@@ -73,6 +78,8 @@ class Ingest(Stage):
                 cv2.imwrite(str(ctx.out / "frames" / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
                 usable = combine(fov, spec)
                 depth = stereo.of(frame.source_index, rgb, usable) if stereo.active else None
+                relative = prior.of(frame.source_index, size, fov) if prior.active else None
+                prior_frames += relative is not None
                 stereo_shares.append(None if depth is None else stereo.share(depth, fov))
                 tool = tools.of(frame.source_index, rgb, fov, size)
                 if tool is not None:
@@ -91,6 +98,9 @@ class Ingest(Stage):
                         tool_share=float(tool.mean()) if tool is not None else None,
                         stereo=None if depth is None else stereo.write(ctx.out, name[:-4], depth),
                         stereo_share=stereo_shares[-1],
+                        depth_prior=None
+                        if relative is None
+                        else prior.write(ctx.out, name[:-4], relative),
                     )
                 )
                 advance()
@@ -107,6 +117,7 @@ class Ingest(Stage):
             known_poses=known_poses(source, entries),
             dropped_frames=selection.dropped_frames or {},
             stereo=stereo_info(stereo),
+            depth_prior=str(source.depth_prior.folder) if source.depth_prior else None,
         )
         write_json(ctx.out / FRAMES_FILE, frames_file.model_dump(mode="json"))
         write_contact_sheet(
@@ -118,8 +129,13 @@ class Ingest(Stage):
             ctx.log("the case has no intrinsics.json: COLMAP estimates the camera")
         if tools.active:
             ctx.log(tools.line(tool_fracs))
+        for note in source.notes:
+            if note.startswith("--"):  # what the user's --right / --baseline-mm replaced
+                ctx.log(note)
         if stereo.active or source.stereo is not None:
             ctx.log(stereo.line(stereo_shares))
+        if prior.active:
+            ctx.log(prior.line(prior_frames, len(frames)))
         poses_said = known_poses_said(frames_file.known_poses)
         if poses_said:
             ctx.log(poses_said)
@@ -146,6 +162,8 @@ class Ingest(Stage):
             stereo_baseline_mm=stereo.pairs.baseline_mm if stereo.active and stereo.pairs else None,
             stereo_coverage=stereo_shares if stereo.active else None,
             stereo_mean_coverage=mean_share(stereo_shares) if stereo.active else None,
+            depth_prior=str(source.depth_prior.folder) if source.depth_prior else None,
+            depth_prior_frames=prior_frames if prior.active else None,
             has_intrinsics=intrinsics is not None,
             has_ground_truth=source.gt_dir is not None,
             gt_frames_without_depth=gt.frames_without_depth,

@@ -35,6 +35,10 @@ class IngestSummary(Summary):
     stereo_baseline_mm: float | None = None
     stereo_coverage: list[float | None] | None = None
     stereo_mean_coverage: float | None = None
+    #: depth maps made elsewhere (`--depth-prior`, relative; 01_ingest/depth_prior/): the
+    #: folder they were read from and how many kept frames had one (None: no prior given)
+    depth_prior: str | None = None
+    depth_prior_frames: int | None = None
     has_intrinsics: bool
     has_ground_truth: bool
     gt_frames_without_depth: int = 0  # kept frames the ground truth has no depth for

@@ -48,6 +48,11 @@ class FrameEntry(BaseModel):
     stereo_share: float | None = Field(
         None, description="the share of the field of view the stereo depth covers"
     )
+    depth_prior: str | None = Field(
+        None,
+        description="its depth prior (`--depth-prior`: float32, relative, 0 = unknown) at the "
+        "working size, relative to 01_ingest; None: no map for this frame",
+    )
 
 
 class SourceInfo(BaseModel):
@@ -95,6 +100,11 @@ class FramesFile(BaseModel):
     known_poses: KnownPoses | None = None
     stereo: StereoInfo | None = Field(
         None, description="The stereo rig whose depth is in stereo/; None: no stereo depth."
+    )
+    depth_prior: str | None = Field(
+        None,
+        description="The folder the depth prior in depth_prior/ was read from (`--depth-prior`); "
+        "None: none given.",
     )
 
 
@@ -174,6 +184,20 @@ class IngestView:
         working frame's pixel grid; None when ingest matched no right view for it. Metric:
         a scale the monocular stages cannot have."""
         file = self.frame(i).stereo
+        if file is None or not (self.folder / file).is_file():
+            return None
+        return np.load(self.folder / file).astype(np.float32, copy=False)
+
+    @property
+    def has_depth_prior(self) -> bool:
+        """Whether the user gave depth maps (`--depth-prior`), read by `depth_prior(i)`."""
+        return self.file.depth_prior is not None
+
+    def depth_prior(self, i: int) -> np.ndarray | None:
+        """float32 depth of frame i from the user's depth prior, on the working frame's pixel
+        grid, 0 = unknown; None when there is no map for it. Relative: its scale and shift are
+        unknown, so it is used only up to them."""
+        file = self.frame(i).depth_prior
         if file is None or not (self.folder / file).is_file():
             return None
         return np.load(self.folder / file).astype(np.float32, copy=False)

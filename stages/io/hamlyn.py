@@ -45,7 +45,7 @@ from endopipe.stages.camera import Camera
 from endopipe.stages.io.frame_truth import PerFrameGroundTruth
 from endopipe.stages.io.ground_truth import GroundTruthSource, holds_case_truth, open_case_truth
 from endopipe.stages.io.images import ImageListSource, list_images
-from endopipe.stages.io.stereo_pairs import StereoPairs
+from endopipe.stages.io.stereo_pairs import BASELINE_RANGE_MM, StereoPairs
 
 NAME = "hamlyn"
 LAYOUT = (
@@ -60,8 +60,6 @@ CEILING_MM = 300.0
 INTRINSICS = "intrinsics.txt"
 EXTRINSICS = "extrinsics.txt"
 EDAM_INTRINSICS = "intrinsic/intrinsic_color.txt"
-#: Baselines outside this range (mm) are a unit or file mix-up, not an endoscope.
-BASELINE_RANGE_MM = (0.5, 100.0)
 #: A right image at most this many pixels larger than the left frames is cropped, centred, as
 #: the image readers crop frames of one camera that differ by a pixel or two.
 CROP_PX = 2

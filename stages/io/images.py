@@ -97,6 +97,8 @@ class ImageListSource(InputSource):
             h.append(self.tool_masks.digest())
         if self.stereo is not None:
             h.append(self.stereo.digest())
+        if self.depth_prior is not None:
+            h.append(self.depth_prior.digest())
         return digest_text("|".join(h))
 
 

@@ -10,6 +10,7 @@ import numpy as np
 
 from endopipe.pipeline.cache import digest_path, digest_text
 from endopipe.stages.camera import Camera
+from endopipe.stages.io.depth_prior import DepthPrior
 from endopipe.stages.io.ground_truth import GroundTruthSource, open_case_truth
 from endopipe.stages.io.stereo_pairs import StereoPairs
 from endopipe.stages.io.tool_masks import ToolMasks
@@ -39,6 +40,8 @@ class InputSource:
         self.known_poses_from: str | None = None
         #: Rectified right views of the frames (a stereo data set, `--right`), or None.
         self.stereo: StereoPairs | None = None
+        #: Depth maps made elsewhere (`--depth-prior`), relative: by source_index, or None.
+        self.depth_prior: DepthPrior | None = None
         #: One line each of what the reader did to the input that the run should say (frames
         #: cropped to one size, a lens fitted to the data set's calibration).
         self.notes: list[str] = []
@@ -57,6 +60,8 @@ class InputSource:
             parts.append(self.tool_masks.digest())
         if self.stereo is not None:
             parts.append(self.stereo.digest())
+        if self.depth_prior is not None:
+            parts.append(self.depth_prior.digest())
         return digest_text("|".join(parts))
 
     def ground_truth(self) -> GroundTruthSource | None:

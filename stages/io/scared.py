@@ -182,6 +182,8 @@ class ScaredSource(InputSource):
             parts.append(digest_text(repr([p.round(9).tolist() for p in self.known_poses])))
         if self.stereo is not None:
             parts.append(self.stereo.digest())
+        if self.depth_prior is not None:
+            parts.append(self.depth_prior.digest())
         return digest_text("|".join(parts))
 
     def ground_truth(self) -> GroundTruthSource | None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from endopipe.pipeline.errors import InputError
+from endopipe.stages.io.added import AddedInputs, add_inputs
 from endopipe.stages.io.case_folder import case_folder_of
 from endopipe.stages.io.datasets import READERS, detect_dataset, open_dataset
 from endopipe.stages.io.images import IMAGE_SUFFIXES, ImageFolderSource
@@ -23,13 +24,24 @@ FORMATS = ("auto", "case", "video", "images", *READERS)
 
 
 def open_input(
-    path: Path, intrinsics_file: Path | None = None, format: str | None = None
+    path: Path,
+    intrinsics_file: Path | None = None,
+    format: str | None = None,
+    added: AddedInputs | None = None,
 ) -> InputSource:
     """Pick the reader for a path, checking it is usable before anything is written.
 
     `format` (one of FORMATS) overrides detection; datasets (Hamlyn, C3VD, SimCol3D) are
-    read in place by the readers of stages/io/datasets.py.
+    read in place by the readers of stages/io/datasets.py. `added`: the right views and depth
+    prior the user gave beside the input (`--right`, `--depth-prior`), put on the source.
     """
+    return add_inputs(read_input(path, intrinsics_file, format), added)
+
+
+def read_input(
+    path: Path, intrinsics_file: Path | None = None, format: str | None = None
+) -> InputSource:
+    """The input as its reader reads it."""
     path = Path(path).expanduser()
     if not path.exists():
         raise InputError(f"input not found: {path}; {HINT}")

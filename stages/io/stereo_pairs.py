@@ -16,6 +16,9 @@ import numpy as np
 
 from endopipe.pipeline.cache import digest_text
 
+#: Baselines outside this range (mm) are a unit or file mix-up, not an endoscope.
+BASELINE_RANGE_MM = (0.5, 100.0)
+
 
 @dataclass(frozen=True)
 class StereoPairs:
