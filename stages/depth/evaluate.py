@@ -23,6 +23,9 @@ from endopipe.stages.metrics.depth import (
     image_metrics,
 )
 
+#: The baseline name of the user's depth prior (`--depth-prior`) in `baselines`.
+PRIOR = "depth_prior"
+
 
 def ground_truth_depths(
     gt: GroundTruthSource | None, ingest: IngestView, indices: list[int]
@@ -74,6 +77,7 @@ def evaluate(
     principal: tuple[float, float] | None = None,
     metric: bool = False,
     stereo: dict[int, np.ndarray] | None = None,
+    prior: dict[int, np.ndarray] | None = None,
 ) -> dict:
     """Both depth protocols per frame and mean; PSNR / SSIM on held-out frames.
     `baselines` holds the same protocol blocks (means, no per-frame list) for the radial and
@@ -81,7 +85,8 @@ def evaluate(
     the field of view and ours has a depth, so a hole in ours is no easy pixel dropped for us
     alone (their coverage is therefore ours). `principal` is the camera's (cx, cy) on the
     working grid (the image centre when None). `metric` poses add the unscaled block; a stereo
-    rig's depth maps (`stereo`, by frame) are scored beside ours as a guess is. The dict is
+    rig's depth maps (`stereo`, by frame) are scored beside ours as a guess is, and so is the
+    user's depth prior (`prior`, by frame; relative: no unscaled block). The dict is
     metrics.json's content, which the stage writes as `DepthMetrics`."""
     metrics: dict = {}
     if gt_depths:
@@ -102,6 +107,9 @@ def evaluate(
         if stereo:
             empty = np.zeros((ingest.height, ingest.width), np.float32)
             maps_of["stereo"] = [stereo.get(i, empty) for i in ids]
+        if prior:
+            empty = np.zeros((ingest.height, ingest.width), np.float32)
+            maps_of[PRIOR] = [prior.get(i, empty) for i in ids]
         for name, maps in maps_of.items():
             same_pixels = [
                 np.where((d > 0) & np.isfinite(d), g, 0).astype(np.float32)
@@ -109,6 +117,8 @@ def evaluate(
             ]
             scored = sequence(same_pixels, truth, masks, ids)
             scored.pop("per_frame")
+            if name == PRIOR:  # relative: its own units mean nothing
+                scored.pop("unscaled", None)
             metrics["baselines"][name] = scored
     if rgbs:
         ids = sorted(rgbs)
@@ -166,6 +176,13 @@ def scores_by_support(
         if any((d > 0).any() for d in ours):
             out[name] = sequence(ours, truth, [inside] * len(ids), ids)[block]
     return out
+
+
+def prior_maps(ingest: IngestView, ids: list[int]) -> dict[int, np.ndarray]:
+    """The user's depth prior of frames `ids` ({} without one): scored beside ours."""
+    if not ingest.has_depth_prior:
+        return {}
+    return {i: d for i in ids if (d := ingest.depth_prior(i)) is not None}
 
 
 def stereo_maps(ingest: IngestView, ids: list[int]) -> dict[int, np.ndarray]:

@@ -21,6 +21,7 @@ from endopipe.stages.depth.config import DepthConfig
 from endopipe.stages.depth.evaluate import (
     evaluate,
     ground_truth_depths,
+    prior_maps,
     scores_by_support,
     stereo_maps,
 )
@@ -44,7 +45,7 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    version = 10  # 10: metric poses scored unscaled too; a stereo rig's depth beside ours
+    version = 11  # 11: the user's depth prior scored beside ours; 10: metric poses unscaled, stereo
     Config = DepthConfig
     Summary = DepthSummary
     View = DepthView
@@ -105,7 +106,15 @@ class Depth(Stage):
         gt = ingest.ground_truth_for_scores(ctx.log)
         gt_depths = ground_truth_depths(gt, ingest, list(depths))
         evaluation = evaluate(
-            gt, ingest, depths, gt_depths, rgbs, (k.cx, k.cy), poses.metric, stereo or None
+            gt,
+            ingest,
+            depths,
+            gt_depths,
+            rgbs,
+            (k.cx, k.cy),
+            poses.metric,
+            stereo or None,
+            prior_maps(ingest, list(depths)) or None,
         )
         if support is not None and gt_depths:
             by = scores_by_support(gt, ingest, depths, gt_depths, support.seen_again_maps)

@@ -424,6 +424,22 @@ class LossConfig(_Section):
     stereo_per_frame: int = Field(
         4096, ge=1, description="Matched pixels drawn once per training frame (a fixed draw)."
     )
+    depth_prior_weight: float = Field(
+        0.1,
+        ge=0,
+        description="Depth maps the user made elsewhere (`--depth-prior`, the ingest stage's "
+        "depth_prior/; relative): each frame's map fitted to the rendered depth by a "
+        "least-squares scale and shift, then a Huber on the residual (scale-and-shift "
+        "invariant, as MiDaS's loss). Shapes each frame's depth, never its scale. Nothing "
+        "without --depth-prior (0: off).",
+    )
+    depth_prior_frames: int = Field(
+        4, ge=1, description="Frames per step for the depth prior (a scale and shift each)."
+    )
+    depth_prior_rays: int = Field(128, ge=8, description="Depth-prior rays per frame per step.")
+    depth_prior_per_frame: int = Field(
+        4096, ge=8, description="Prior pixels drawn once per training frame (a fixed draw)."
+    )
     sparse_min_angle: float = Field(
         0.0,
         ge=0,

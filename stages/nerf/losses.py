@@ -125,3 +125,23 @@ def prior_multiplier(progress: float, start: float, decay: float) -> float:
     """Coarse to fine: lambda_1 x start at the beginning, decaying geometrically to x1 when the
     training progress reaches `decay`."""
     return float(start ** max(0.0, 1.0 - progress / decay))
+
+
+def prior_depth(
+    depth: torch.Tensor, prior: torch.Tensor, delta: float = 0.05, eps: float = 1e-8
+) -> torch.Tensor:
+    """Scale-and-shift-invariant depth loss on (F, R) rays, R per frame (MiDaS-style): each
+    frame's prior mapped onto our depth by its least-squares scale (at least 0) and shift, then
+    a Huber on the residual relative to the frame's median depth. Invariant to any positive
+    scale and any shift of the prior, and to a scale of our depth: a relative prior shapes the
+    depth of each frame, never its scale."""
+    p_mean = prior.mean(1, keepdim=True)
+    d_mean = depth.mean(1, keepdim=True)
+    pc, dc = prior - p_mean, depth - d_mean
+    scale = (pc * dc).sum(1, keepdim=True) / pc.square().sum(1, keepdim=True).clamp_min(eps)
+    scale = scale.clamp_min(0.0)
+    fitted = scale * pc + d_mean
+    unit = depth.detach().median(1, keepdim=True).values.abs().clamp_min(eps)
+    a = ((depth - fitted) / unit).abs()
+    huber = torch.where(a < delta, 0.5 * a.square() / delta, a - 0.5 * delta)
+    return huber.mean()

@@ -32,6 +32,7 @@ from endopipe.stages.nerf.files import HELDOUT_RGB_DIR, MODEL_FILE
 from endopipe.stages.nerf.metrics_file import NerfMetrics
 from endopipe.stages.nerf.point_refine import refine_points
 from endopipe.stages.nerf.pose_refine import record, refinement_wanted
+from endopipe.stages.nerf.prior_depth import PriorRays, prior_depth_targets
 from endopipe.stages.nerf.render import pick_device, render_image, save_model
 from endopipe.stages.nerf.scene import SceneBox
 from endopipe.stages.nerf.sparse_depth import SparseDepth, sparse_depth_targets
@@ -188,6 +189,32 @@ def load_stereo_depth(
     frames = len(torch.unique(stereo.frame)) if stereo else 0
     log(f"stereo depth: {len(stereo) if stereo else 0} matched-pixel rays from {frames} frames")
     return stereo
+
+
+def load_prior_depth(
+    ingest, positions: dict[int, int], cfg: NerfConfig, device, log
+) -> PriorRays | None:
+    """The user's depth prior (relative) of the training frames as per-frame targets, on the
+    pixels their masks keep; only with `--depth-prior` and a weight."""
+    lc = cfg.loss
+    if lc.depth_prior_weight <= 0 or not ingest.has_depth_prior:
+        return None
+    usable = {i: ingest.mask(i) > 127 for i in positions}
+    rays = prior_depth_targets(
+        ingest,
+        positions,
+        usable,
+        lc.depth_prior_per_frame,
+        lc.depth_prior_rays,
+        device,
+        cfg.train.seed,
+    )
+    frames = len(rays.frame) if rays else 0
+    log(
+        f"depth prior: {len(rays) if rays else 0} rays from {frames} of {len(positions)} "
+        "training frames (relative: a scale and shift fitted per frame)"
+    )
+    return rays
 
 
 def sparse_usable(poses: PosesView, camera: Camera, share: float) -> np.ndarray:
@@ -349,9 +376,20 @@ def set_up_training(
         sparse = load_sparse_depth(ingest, poses, train_pos, box, cfg, device, grey, log)
         log(sparse_depth_line(sparse, cfg.loss.sparse_min_angle))
     stereo = load_stereo_depth(ingest, poses, {i: pos[i] for i in train_ids}, box, cfg, device, log)
+    relative = load_prior_depth(ingest, {i: pos[i] for i in train_ids}, cfg, device, log)
     refine = refinement_wanted(cfg.pose_refine.mode, poses.file.source)
     trainer = Trainer(
-        cfg, frames, [pos[i] for i in train_ids], prior, box, out, log, sparse, refine, stereo
+        cfg,
+        frames,
+        [pos[i] for i in train_ids],
+        prior,
+        box,
+        out,
+        log,
+        sparse,
+        refine,
+        stereo,
+        relative,
     )
     trainer.model.set_frame_times(frame_times(ingest, ids))
     return TrainingSetUp(cfg, trainer, prior, ids, k, c2w, train_ids, held_ids, pos, refine)
@@ -362,7 +400,7 @@ class Nerf(Stage):
 
     name = "nerf"
     needs = ("ingest", "poses", "centerline")
-    version = 7  # 7: a stereo rig's depth supervises the field
+    version = 8  # 8: the user's depth prior (relative) shapes the field; 7: stereo depth
     Config = NerfConfig
     Summary = NerfSummary
     View = NerfView
@@ -555,7 +593,7 @@ def loss_figure(rows: list[dict]):
     steps = [r["step"] for r in rows]
     fig = Figure(figsize=(11, 3.6), dpi=90)
     loss_ax, psnr_ax = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
-    for key in ("loss", "photo", "prior", "smooth", "geo", "sparse", "stereo"):
+    for key in ("loss", "photo", "prior", "smooth", "geo", "sparse", "stereo", "depth_prior"):
         vals = [r.get(key) for r in rows]
         if any(v is not None for v in vals):
             loss_ax.plot(steps, [np.nan if v is None else v for v in vals], label=key)

@@ -22,6 +22,7 @@ from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.data import FrameSet, RaySampler, neighbours
 from endopipe.stages.nerf.model import NerfModel
 from endopipe.stages.nerf.pose_refine import PoseCorrection, corrected_world, lr_factor
+from endopipe.stages.nerf.prior_depth import PriorRays
 from endopipe.stages.nerf.scene import SceneBox
 from endopipe.stages.nerf.sdf_start import start_grid
 from endopipe.stages.nerf.sparse_depth import SparseDepth
@@ -43,6 +44,7 @@ LOG_FIELDS = [
     "distortion",
     "sparse",
     "stereo",
+    "depth_prior",
     "eikonal",
     "pose_reg",
     "pose_deg",
@@ -100,10 +102,12 @@ class Trainer:
         sparse: SparseDepth | None = None,
         refine_poses: bool = False,
         stereo: SparseDepth | None = None,
+        prior_depth: PriorRays | None = None,
     ) -> None:
         self.cfg, self.frames, self.train_pos, self.box = cfg, frames, train, box
         self.sparse = sparse
         self.stereo = stereo
+        self.prior_depth = prior_depth
         self.out_dir = Path(out_dir)
         self.log = log
         self.device = frames.device
@@ -306,6 +310,12 @@ class Trainer:
             depth = self._depth(*self.frames.rays(frame, u, v), frame)
             terms["stereo"] = losses.sparse_depth(depth, z)
             loss = loss + lc.stereo_weight * terms["stereo"]
+        if lc.depth_prior_weight > 0 and self.prior_depth is not None:
+            n, r = lc.depth_prior_frames, lc.depth_prior_rays
+            frame, u, v, p = self.prior_depth.sample(n, r, self.gen)
+            depth = self._depth(*self.frames.rays(frame, u, v), frame)
+            terms["depth_prior"] = losses.prior_depth(depth.view(n, r), p.view(n, r))
+            loss = loss + lc.depth_prior_weight * terms["depth_prior"]
         if lc.opacity_weight > 0 and self.pb.prior.kind == "none":
             # A scope sees tissue along every ray, within its reach; a lumen prior asks that of
             # the rays that meet its wall already (the wall term), and none of those down it.

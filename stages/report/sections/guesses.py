@@ -18,6 +18,7 @@ GUESS_LABELS = {
     "radial": ("radial guess", "the image centre is far"),
     "brightness": ("brightness guess", "inverse-square shading, depth = 1/√brightness"),
     "stereo": ("stereo matcher", "the rig's own depth, left-right checked"),
+    "depth_prior": ("your depth prior", "the --depth-prior maps, median-scaled as ours are"),
 }
 
 
@@ -125,8 +126,9 @@ def verdicts(metrics: DepthMetrics) -> list[str]:
             continue
         label, idea = GUESS_LABELS[name]
         how = "ranks pixels no better than" if head.ranking else "is no more accurate than"
+        the = "" if label.startswith("your ") else "the "
         out.append(
-            f"On this case our depth {how} the {label} ({idea}): {head.name} {value:.3g} "
+            f"On this case our depth {how} {the}{label} ({idea}): {head.name} {value:.3g} "
             f"for ours against {theirs:.3g} for the guess ({head.how})."
         )
     return out
