@@ -57,6 +57,9 @@ COLUMNS = (
     "brightness_abs_rel",
     "radial_delta1",
     "brightness_delta1",
+    "unscaled_abs_rel",
+    "stereo_unscaled_abs_rel",
+    "stereo_coverage",
     "chamfer",
     "chamfer_pct_radius",
     "off_seen_pct",
@@ -85,6 +88,8 @@ class BenchCase(BaseModel):
     vignetting: float = 0.0  # synth --vignetting
     deform: str = "none"  # synth --deform
     still_camera: bool = False  # synth --still-camera
+    layout: str = "endopipe"  # synth --layout: a data set's own layout, read by its reader
+    stereo: bool = False  # synth --stereo: a right eye too (hamlyn, scared)
     sets: list[str] = []  # applied to this case's runs (e.g. the COLMAP camera model)
 
 
@@ -199,6 +204,14 @@ def _plan(quick: bool) -> BenchPlan:
                 deform="pull",
                 still_camera=True,
             ),
+            # a rectified Hamlyn sequence with both eyes, read as the data set ships (no GT
+            # poses used: the stereo gives the scale), moving and still
+            BenchCase(**COLON, name="hamlyn_stereo", layout="hamlyn", stereo=True),
+            BenchCase(
+                **COLON, name="hamlyn_stereo_still", layout="hamlyn", stereo=True, still_camera=True
+            ),
+            # C3VD's layout: its calibration read as the lens, its model mesh the Chamfer truth
+            BenchCase(**COLON, name="c3vd_layout", layout="c3vd"),
         ],
         variants=list(VARIANTS),
         sets=[],
@@ -251,6 +264,8 @@ def case_input(inputs: Path, case: BenchCase, console) -> Path:
     intrinsics and ground truth), or without the lens a folder of links to its video and truth
     only (the camera left to COLMAP)."""
     src = synth_input(inputs, case, console)
+    if case.layout != "endopipe":  # read as the data set ships; its gt/ beside it scores it
+        return src
     if case.given_lens:
         return src / "video.mp4"
     source = inputs / case.name
@@ -264,10 +279,11 @@ def case_input(inputs: Path, case: BenchCase, console) -> Path:
 def synth_input(inputs: Path, case: BenchCase, console) -> Path:
     """The case's synthetic input (written once; cases that differ only in what they are told
     share it)."""
+    from endopipe.commands.synth import STEREO_BASELINE_MM, other_layout
     from endopipe.synth import SynthConfig, generate_case
 
     src = inputs / input_name(case)
-    if not (src / "intrinsics.json").is_file():
+    if not (src / "gt" / "synth.json").is_file():
         console.print(f"[bold]synthesising[/bold] {src.name}")
         generate_case(
             src,
@@ -283,7 +299,9 @@ def synth_input(inputs: Path, case: BenchCase, console) -> Path:
                 vignetting=case.vignetting,
                 deform=case.deform,
                 still_camera=case.still_camera,
+                stereo_baseline_mm=STEREO_BASELINE_MM if case.stereo else None,
             ),
+            layout=other_layout(case.layout, STEREO_BASELINE_MM if case.stereo else None),
         )
     return src
 
@@ -296,6 +314,8 @@ def input_name(case: BenchCase) -> str:
     look += "" if case.vignetting == 0.0 else f"_v{case.vignetting:g}"
     look += "" if case.deform == "none" else f"_{case.deform}"
     look += "_still" if case.still_camera else ""
+    look += "" if case.layout == "endopipe" else f"_{case.layout}"
+    look += "_stereo" if case.stereo else ""
     return f"{case.shape}_s{case.seed}_{case.frames}x{case.width}x{case.height}{lens}{fov}{look}"
 
 
@@ -324,6 +344,7 @@ def collect_row(
     centerline: CenterlineSummary | None = summary("centerline")
     med = depth.median_scaled if depth else None
     guesses = (depth.baselines if depth else None) or {}
+    stereo = guesses.get("stereo")
     return {
         "case": case,
         "variant": variant,
@@ -335,6 +356,9 @@ def collect_row(
             for k in ("abs_rel", "delta1")
             for name in GUESSES
         },
+        "unscaled_abs_rel": _score(depth.unscaled if depth else None, "abs_rel"),
+        "stereo_unscaled_abs_rel": _score(stereo.unscaled if stereo else None, "abs_rel"),
+        "stereo_coverage": stereo.unscaled.coverage if stereo and stereo.unscaled else None,
         "chamfer": mesh.chamfer if mesh else None,
         "chamfer_pct_radius": mesh.chamfer_pct_radius if mesh else None,
         "off_seen_pct": mesh.off_seen_pct if mesh else None,
@@ -376,6 +400,9 @@ def markdown_table(rows: list[dict]) -> str:
         cells += [_fmt(r["peak_mb"], 0)]
         lines.append("| " + " | ".join(cells) + " |")
     lines += ["", guesses_table(rows)]
+    metric = metric_table(rows)
+    if metric:
+        lines += ["", metric]
     failed = [r for r in rows if r.get("error")]
     if failed:
         lines.append("")
@@ -402,6 +429,27 @@ def guesses_table(rows: list[dict]) -> str:
         cells += [_fmt(r.get("delta1"), 4)]
         cells += [_fmt(r.get(f"{name}_delta1"), 4) for name in GUESSES]
         cells.append(_beats(r))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def metric_table(rows: list[dict]) -> str:
+    """Rows whose poses were metric: the depth as it is (no scaling), beside the stereo
+    matcher's own where a rig gave one ("" when no row is metric)."""
+    rows = [r for r in rows if r.get("unscaled_abs_rel") is not None]
+    if not rows:
+        return ""
+    lines = [
+        "Metric poses: depth scored as it is, in millimetres (no scaling), beside the stereo "
+        "matcher's own depth on our pixels where it matched:",
+        "",
+        "| case | variant | AbsRel ours | coverage ours | AbsRel stereo | coverage stereo |",
+        "|" + "---|" * 6,
+    ]
+    for r in rows:
+        cells = [r["case"], _variant(r), _fmt(r["unscaled_abs_rel"], 4)]
+        cells += [_fmt(r.get("coverage"), 3), _fmt(r.get("stereo_unscaled_abs_rel"), 4)]
+        cells += [_fmt(r.get("stereo_coverage"), 3)]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -129,7 +129,7 @@ class Centerline(Stage):
 
         truth = None
         scores: dict[str, float] = {}
-        if ctx.case.gt_dir and poses.metric:
+        if ctx.case.gt_dir and poses.in_gt_frame:
             from endopipe.stages.io.ground_truth import GroundTruth
 
             gt_dir = Path(ctx.case.gt_dir)

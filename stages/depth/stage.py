@@ -158,6 +158,7 @@ class Depth(Stage):
             gt_kind=metrics.gt_kind,
             median_scaled=metrics.median_scaled,
             sequence_scaled=metrics.sequence_scaled,
+            unscaled=metrics.unscaled,
             affine_invariant=metrics.affine_invariant,
             coverage=headline.coverage if (headline := metrics.headline()) else None,
             unknown_share=unknown_px / pixels,

@@ -17,6 +17,8 @@ class DepthSummary(Summary):
     gt_kind: str | None = None  # exact | pseudo | relative; None without ground truth
     median_scaled: DepthScores | None = None
     sequence_scaled: DepthScores | None = None
+    #: the depth as it is, in millimetres: only when the poses are metric
+    unscaled: DepthScores | None = None
     affine_invariant: DepthScores | None = None
     coverage: float | None = None  # share of valid ground-truth pixels that got a depth
     unknown_share: float | None = None  # share of the lens's pixels with no depth
@@ -43,6 +45,7 @@ class DepthSummary(Summary):
         return ProtocolScores(
             median_scaled=self.median_scaled,
             sequence_scaled=self.sequence_scaled,
+            unscaled=self.unscaled,
             affine_invariant=self.affine_invariant,
             frames=self.frames,
         )

@@ -139,6 +139,7 @@ class ToolsConfig(BaseModel):
         "(0.0% of the pixels marked on four real clips without tools, the da Vinci instrument "
         "found on EndoNeRF's cutting clip: docs/experiments.md); off: never.",
     )
+
     @field_validator("detect", mode="before")
     @classmethod
     def _detect_off(cls, v: object) -> object:

@@ -59,20 +59,30 @@ def evaluate_against_gt(
 ) -> dict[str, Any]:
     """metrics.json of a mesh in cameras.json's frame against a GT mesh.
 
-    `gt_poses`: GT c2w per endopipe frame index (None: none known). Metric cameras.json: already
-    in the GT frame; else sim3 (Umeyama) of the registered centres onto the GT centres. The crop
+    `gt_poses`: GT c2w per endopipe frame index (None: none known). Poses aligned to the truth:
+    already in the GT frame; metric in their own frame (a stereo rig's scale): the rigid motion
+    (Umeyama without scale, or one still camera's pose) onto the truth; else sim3 (Umeyama) of
+    the registered centres onto the GT centres. The crop
     cameras are the registered frames at their GT poses (the aligned estimates when no GT pose),
     the depth limit `depth_trunc` x the sim3 scale. Radius for chamfer_pct_radius: `gt_radius`
     (gt/centerline.json), else `est_radius` (cameras.json units) x scale.
     """
     common = sorted(set(poses.registered) & set(gt_poses or {}))
-    if poses.metric:
+    src = np.array([poses.c2w[i][:3, 3] for i in common]).reshape(-1, 3)
+    path = len(common) >= 3 and float(np.ptp(src, axis=0).max()) > 0.0
+    if poses.in_gt_frame:
         s, R, t, aligned = 1.0, np.eye(3), np.zeros(3), "gt_frame"
-    elif len(common) >= 3:
-        src = np.array([poses.c2w[i][:3, 3] for i in common])
+    elif poses.metric and common and not path:
+        # millimetres in the camera's own frame, one place: the truth's pose of that frame
+        # maps it (a rigid motion: the scale is what is scored)
+        i = common[0]
+        move = np.asarray(gt_poses[i], np.float64) @ np.linalg.inv(poses.c2w[i])  # type: ignore[index]
+        s, R, t, aligned = 1.0, move[:3, :3], move[:3, 3], "rigid"
+    elif path:
         dst = np.array([gt_poses[i][:3, 3] for i in common])  # type: ignore[index]
-        s, R, t = umeyama(src, dst, with_scale=True)
-        aligned = "sim3"
+        # metric poses (a stereo rig's scale) keep their scale: only a rigid motion is fitted
+        s, R, t = umeyama(src, dst, with_scale=not poses.metric)
+        aligned = "rigid" if poses.metric else "sim3"
     else:
         return {"evaluated": False, "reason": "cameras not metric and fewer than 3 GT poses"}
 

@@ -51,7 +51,7 @@ class MeshMetrics(MetricsFile):
     off_seen_pct: float | None = None  # % of the mesh far from any surface a camera saw
     off_seen_threshold: float | None = None  # ... that far
     by_camera_distance: list[DistanceBand] | None = None
-    aligned: str | None = None  # "gt_frame" | "sim3"
+    aligned: str | None = None  # "gt_frame" | "rigid" (metric in its own frame) | "sim3"
     sim3_scale: float | None = None
     mean_radius: float | None = None
     crop_max_depth: float | None = None

@@ -75,7 +75,7 @@ class Mesh(Stage):
 
     name = "mesh"
     needs = ("ingest", "poses", "centerline", "nerf", "depth")
-    version = 3  # 3: a dynamic field's mesh is one frame's surface
+    version = 4  # 4: metric poses in their own frame (a stereo rig) are aligned rigidly
     Config = MeshConfig
     Summary = MeshSummary
     View = MeshView

@@ -151,7 +151,8 @@ class PosesConfig(StageConfig):
     align_to_gt: bool = Field(
         True,
         description="With ground-truth poses in the input, move the reconstruction onto them "
-        "(sim3 on camera centres): GT world frame, millimetres, metric=true.",
+        "(sim3 on camera centres): GT world frame, millimetres, metric=true. Not with a stereo "
+        "rig: its depth gives the scale, and the truth only scores.",
     )
     seed: int = Field(0, ge=0, description="Seed of every random choice (RANSAC, mapper).")
     num_threads: int = Field(

@@ -114,6 +114,8 @@ class Poses(Stage):
         metric = False
         if cfg.source == "gt":
             aligned, metric = True, gt_metric
+        elif gt_poses is not None and cfg.align_to_gt and ingest.has_stereo:
+            ctx.log("not aligned to the ground truth: the stereo rig gives the scale")
         elif gt_poses is not None and cfg.align_to_gt:
             aligned = align_to(est, gt_poses)
             metric = aligned and gt_metric

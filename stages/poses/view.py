@@ -156,6 +156,17 @@ class PosesView:
         return self.summary.motion
 
     @property
+    def in_gt_frame(self) -> bool:
+        """Metric poses in the ground truth's world frame (aligned to it), not only in its
+        units: a stereo rig's scale gives millimetres in the poses' own frame. A folder with
+        no manifest, or written before the scale had a source, is metric by alignment."""
+        if not self.metric:
+            return False
+        if Manifest.load(self.folder) is None:
+            return True
+        return self.summary.metric_from in (None, "ground truth")
+
+    @property
     def still(self) -> bool:
         """The camera stood still: one pose for every frame, nothing seen from two places."""
         motion = self.motion

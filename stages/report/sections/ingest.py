@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from endopipe.stages.ingest.summary import IngestSummary
+from endopipe.stages.poses.verdict import ranges
 from endopipe.stages.report.images import file_image_uri
 from endopipe.stages.report.kit import render
 from endopipe.stages.report.load import CaseData
@@ -16,4 +18,22 @@ def section_input(data: CaseData, info: ReportInfo) -> str | None:
         sheet = file_image_uri(path, 1100, "jpg", data.cfg.jpeg_quality)
     if sheet is None and ing is None:
         return None
-    return render("sections/input.html.j2", sheet=sheet, ing=ing)
+    return render("sections/input.html.j2", sheet=sheet, ing=ing, stereo=stereo_line(ing))
+
+
+def stereo_line(ing: IngestSummary | None) -> str | None:
+    """Which frames had a right view matched, and how much of each the stereo depth covers
+    (None without stereo)."""
+    if ing is None or ing.stereo is None or not ing.stereo_coverage:
+        return None
+    matched = [i for i, c in enumerate(ing.stereo_coverage) if c is not None]
+    shares = [c for c in ing.stereo_coverage if c is not None]
+    if not shares:
+        return f"{ing.stereo}: no frame had a right view"
+    line = (
+        f"{len(matched)} of {len(ing.stereo_coverage)} kept frames (positions "
+        f"{ranges(matched)}) matched, covering {min(shares):.0%}-{max(shares):.0%} of the "
+        f"view (mean {sum(shares) / len(shares):.0%})"
+    )
+    baseline = f", baseline {ing.stereo_baseline_mm:.2f} mm" if ing.stereo_baseline_mm else ""
+    return f"{line}; right views from {ing.stereo}{baseline}"

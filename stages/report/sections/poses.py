@@ -20,7 +20,7 @@ def gt_centres(data: CaseData, ids: list[int]) -> np.ndarray | None:
     """Ground-truth camera centres of the registered frames, when poses are in the GT frame."""
     from endopipe.stages.io.ground_truth import poses_by_frame
 
-    if data.poses is None or not data.poses.metric or data.ingest is None:
+    if data.poses is None or not data.poses.in_gt_frame or data.ingest is None:
         return None
     truth = poses_by_frame(data.ground_truth(), data.ingest.frames)
     if truth is None or any(i not in truth for i in ids):
