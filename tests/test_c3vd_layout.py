@@ -76,7 +76,9 @@ def test_the_model_mesh_is_the_mesh_stage_truth(case: tuple[Path, SynthConfig]) 
     assert np.allclose(model.vertices, scene.vertices, atol=1e-4)
     gt_poses = dict(enumerate(open_ground_truth(path).poses()))
     k = open_dataset(path, "c3vd").intrinsics
-    poses = SimpleNamespace(registered=list(gt_poses), c2w=gt_poses, metric=True, intrinsics=k)
+    poses = SimpleNamespace(
+        registered=list(gt_poses), c2w=gt_poses, metric=True, in_gt_frame=True, intrinsics=k
+    )
     cfg_mesh = MeshConfig(eval_samples=3_000, eval_occlusion=False)
     # the model moved 0.5 mm: the score finds the truth in its frame and measures the shift
     moved = type(model)(model.vertices + [0.0, 0.5, 0.0], model.faces, None)

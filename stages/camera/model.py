@@ -57,7 +57,11 @@ class Camera(BaseModel):
 
     @property
     def distorted(self) -> bool:
-        return self.model != "pinhole" and any(abs(c) > 0 for c in self.dist or [])
+        """Whether rays bend: a fisheye always (with k = 0 it is equidistant, r = f theta, not
+        a pinhole), OpenCV's model when a coefficient is not zero."""
+        return self.model == "fisheye" or (
+            self.model != "pinhole" and any(abs(c) > 0 for c in self.dist or [])
+        )
 
     def coefficients(self) -> np.ndarray:
         """Distortion coefficients as OpenCV wants them (empty for a pinhole)."""

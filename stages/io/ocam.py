@@ -262,11 +262,14 @@ def ocam_from_camera(camera: Camera, degree: int = 6) -> OcamLens:
     ideal = undistort_normalised(camera, xy)[:, 0]  # tan(theta)
     z = rho / np.maximum(ideal, 1e-12)
     powers = [0, *range(2, degree + 1)]
-    A = np.stack([rho**k for k in powers], -1)
+    # radii scaled to [0, 1]: in pixels rho^6 outgrows the constant column by 1e13, and the
+    # least squares' cut-off dropped the focal length itself
+    unit = rho / corner
+    A = np.stack([unit**k for k in powers], -1)
     coef, *_ = np.linalg.lstsq(A, z, rcond=None)
     poly = [0.0] * (degree + 1)
     for k, c in zip(powers, coef, strict=True):
-        poly[k] = float(c)
+        poly[k] = float(c) / corner**k
     return OcamLens(
         width=camera.width,
         height=camera.height,
