@@ -13,7 +13,7 @@ from endopipe.commands.synth import other_layout
 from endopipe.stages.camera import image_directions
 from endopipe.stages.io.c3vd import decode_depth, encode_depth
 from endopipe.stages.io.datasets import detect_dataset, open_dataset, open_ground_truth
-from endopipe.stages.io.ocam import fit_fisheye, read_ocam
+from endopipe.stages.io.ocam import fit_fisheye, ocam_from_camera, read_ocam, write_ocamcalib
 from endopipe.stages.mesh.config import MeshConfig
 from endopipe.stages.mesh.evaluation import (
     case_ground_truth,
@@ -141,3 +141,25 @@ def test_ocamcalib_export_reads_with_its_axes(tmp_path: Path) -> None:
     assert lens.poly[0] == pytest.approx(271.6972)  # looking forward
     centre = lens.directions(np.array(lens.cx), np.array(lens.cy))
     assert centre[2] == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("model, dist", [("pinhole", []), ("fisheye", [-0.05, 0.01, 0.0, 0.0])])
+def test_a_working_size_lens_survives_the_calibration_file(tmp_path: Path, model, dist) -> None:
+    """320x256, as the bench writes it: the polynomial keeps the focal length, and the fisheye
+    fitted to it puts every ray where the camera does (a pinhole included: an equidistant
+    fisheye with k = 0 is not one)."""
+    from endopipe.stages.camera import Camera
+    from endopipe.stages.camera.projection import project_camera
+
+    cam = Camera(width=320, height=256, fx=160, fy=160, cx=159.5, cy=127.5, model=model, dist=dist)
+    write_ocamcalib(tmp_path / "calib_results.txt", ocam_from_camera(cam))
+    lens = read_ocam(tmp_path / "calib_results.txt")
+    assert abs(abs(lens.poly[0]) - 160.0) < 2.0  # measured 160.0 (was 7e-4: cut off)
+    fit = fit_fisheye(lens)
+    assert fit.rms_px < 0.05  # measured 0.00
+    u, v = np.meshgrid(np.arange(0, 320, 16.0), np.arange(0, 256, 16.0))
+    rays = lens.directions(u.ravel(), v.ravel())
+    uv, _ = project_camera(fit.camera, rays)
+    assert np.abs(uv - np.stack([u.ravel(), v.ravel()], -1)).max() < 0.1
+    # an OpenCV fisheye holds a pinhole only with k != 0 (COLMAP reads k = 0 as equidistant)
+    assert model != "pinhole" or abs(fit.camera.dist[0]) > 0.1

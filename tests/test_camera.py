@@ -242,3 +242,24 @@ def test_near_clamp_keeps_points_behind_the_camera_out_of_the_image() -> None:
     behind = np.array([[0.5, 0.2, -3.0], [0.01, 0.0, 1e-9]])
     uv, z = project_camera(camera, behind, near=1e-4)
     assert z[0] == -3.0 and (np.abs(uv - [camera.cx, camera.cy]) > W).any(axis=1).all()
+
+
+def test_a_fisheye_with_zero_coefficients_is_equidistant() -> None:
+    """OpenCV's and COLMAP's fisheye with k = 0 puts a ray theta off the axis at f theta, not at
+    f tan(theta): the camera must not take it for a pinhole."""
+    from endopipe.stages.camera import Camera
+    from endopipe.stages.camera.projection import project_camera
+
+    cam = Camera(
+        width=320,
+        height=256,
+        fx=160,
+        fy=160,
+        cx=159.5,
+        cy=127.5,
+        model="fisheye",
+        dist=[0, 0, 0, 0],
+    )
+    theta = np.radians(50.0)
+    uv, _ = project_camera(cam, np.array([[np.sin(theta), 0.0, np.cos(theta)]]))
+    assert abs(uv[0, 0] - (159.5 + 160 * theta)) < 1e-6
