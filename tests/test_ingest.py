@@ -76,11 +76,11 @@ def test_view_reads_what_ingest_wrote(ingested: tuple[Path, Path]) -> None:
     raw = json.loads((out / "frames.json").read_text())
     assert list(raw) == [
         "frames", "intrinsics", "width", "height", "source", "gt_dir", "fov_shape", "dropped",
-        "dropped_frames", "tools", "known_poses", "stereo",
+        "dropped_frames", "tools", "known_poses", "stereo", "depth_prior",
     ]  # fmt: skip
     assert list(raw["frames"][0]) == [
         "index", "source_index", "time_s", "file", "mask", "tool", "tool_share", "stereo",
-        "stereo_share",
+        "stereo_share", "depth_prior",
     ]  # fmt: skip
     view = IngestView(out)
     assert view.indices == list(range(6)) and view.frame(4).source_index == 4

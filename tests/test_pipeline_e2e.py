@@ -118,7 +118,7 @@ def test_from_reruns_downstream(first_run: tuple[Path, float]) -> None:
 def test_deleted_file_makes_stage_stale(first_run: tuple[Path, float]) -> None:
     case, _ = first_run
     (case / "01_ingest" / "masks" / "000003.png").unlink()
-    rerun(case)
+    rerun(case, "--until", "ingest")
     assert statuses(case)["ingest"] == "ran"
     assert (case / "01_ingest" / "masks" / "000003.png").is_file()
 
