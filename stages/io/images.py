@@ -91,15 +91,7 @@ class ImageListSource(InputSource):
         h = [self.kind]
         for f in self.files:
             h.append(f"{f.relative_to(self.path)}:{digest_path(f)}")
-        if self.intrinsics is not None:
-            h.append(self.intrinsics.model_dump_json())
-        if self.tool_masks is not None:
-            h.append(self.tool_masks.digest())
-        if self.stereo is not None:
-            h.append(self.stereo.digest())
-        if self.depth_prior is not None:
-            h.append(self.depth_prior.digest())
-        return digest_text("|".join(h))
+        return digest_text("|".join([*h, *self.given_digests()]))
 
 
 def read_images(files: list[Path], size: tuple[int, int] | None = None) -> Iterator[Frame]:

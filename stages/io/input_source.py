@@ -53,16 +53,16 @@ class InputSource:
         return None
 
     def digest(self) -> str:
-        parts = [digest_path(self.path)]
-        if self.intrinsics is not None:
-            parts.append(self.intrinsics.model_dump_json())
-        if self.tool_masks is not None:
-            parts.append(self.tool_masks.digest())
-        if self.stereo is not None:
-            parts.append(self.stereo.digest())
-        if self.depth_prior is not None:
-            parts.append(self.depth_prior.digest())
-        return digest_text("|".join(parts))
+        return digest_text("|".join([digest_path(self.path), *self.given_digests()]))
+
+    def given_digests(self) -> list[str]:
+        """What came with the frames and makes the ingest key too (any reader's digest adds
+        them): the intrinsics, tool masks, right views and depth prior, those given."""
+        parts = [self.intrinsics.model_dump_json()] if self.intrinsics is not None else []
+        for given in (self.tool_masks, self.stereo, self.depth_prior):
+            if given is not None:
+                parts.append(given.digest())
+        return parts
 
     def ground_truth(self) -> GroundTruthSource | None:
         """The input's ground truth for evaluation (None when it has none): an endopipe case

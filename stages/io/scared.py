@@ -180,11 +180,7 @@ class ScaredSource(InputSource):
         parts = [self.kind, digest_path(self.path / VIDEO), digest_path(self.path / CALIBRATION)]
         if self.known_poses is not None:
             parts.append(digest_text(repr([p.round(9).tolist() for p in self.known_poses])))
-        if self.stereo is not None:
-            parts.append(self.stereo.digest())
-        if self.depth_prior is not None:
-            parts.append(self.depth_prior.digest())
-        return digest_text("|".join(parts))
+        return digest_text("|".join([*parts, *self.given_digests()]))
 
     def ground_truth(self) -> GroundTruthSource | None:
         return ground_truth(self.gt_dir) if self.gt_dir is not None else None
