@@ -14,9 +14,9 @@ from endopipe.pipeline.errors import InputError
 from endopipe.pipeline.stage import CaseInfo
 from endopipe.stages.io.depth_prior import open_depth_prior
 from endopipe.stages.io.input_source import InputSource
+from endopipe.stages.io.name_numbers import file_number
 from endopipe.stages.io.right_folder import check_baseline, right_folder_pairs
 from endopipe.stages.io.stereo_pairs import StereoPairs
-from endopipe.stages.io.tool_masks import file_number
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,6 @@ inside the functions that need it: cv2 must be imported first (see `endopipe.sta
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -251,12 +250,6 @@ def write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray | None = None) -> Non
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
     rgb = np.full((len(xyz), 3), 200, np.uint8) if rgb is None else np.asarray(rgb, np.uint8)
     trimesh.PointCloud(xyz, colors=rgb.reshape(-1, 3)).export(str(path), file_type="ply")
-
-
-def trailing_number(name: str) -> int | None:
-    """The last integer in a file name's stem (`frame_0012.png` -> 12), or None."""
-    found = re.findall(r"\d+", Path(name).stem)
-    return int(found[-1]) if found else None
 
 
 def _short(e: BaseException) -> str:

@@ -39,7 +39,8 @@ from endopipe.stages.io.ground_truth import (
     open_case_truth,
 )
 from endopipe.stages.io.images import ImageListSource, list_images
-from endopipe.stages.io.tool_masks import file_number, masks_for_frames, numbered_masks
+from endopipe.stages.io.name_numbers import file_number
+from endopipe.stages.io.tool_masks import masks_for_frames, numbered_masks
 
 NAME = "endonerf"
 LAYOUT = "images/*.png, poses_bounds.npy (LLFF), optional masks/ (255 = tool) and depth/"

@@ -45,6 +45,7 @@ from endopipe.stages.camera import Camera
 from endopipe.stages.io.frame_truth import PerFrameGroundTruth
 from endopipe.stages.io.ground_truth import GroundTruthSource, holds_case_truth, open_case_truth
 from endopipe.stages.io.images import ImageListSource, list_images
+from endopipe.stages.io.name_numbers import file_number
 from endopipe.stages.io.stereo_pairs import BASELINE_RANGE_MM, StereoPairs
 
 NAME = "hamlyn"
@@ -106,18 +107,12 @@ def is_sequence(path: Path) -> bool:
     return sequence_folder(Path(path)) is not None
 
 
-def frame_number(path: Path) -> int | None:
-    """The number in a file name (`0000000012.jpg` -> 12); None when it has none."""
-    digits = "".join(c if c.isdigit() else " " for c in path.stem).split()
-    return int(digits[-1]) if digits else None
-
-
 def matched(frames: list[Path], files: list[Path]) -> list[Path | None]:
     """Each frame's file in `files` (depth, right image): the one with its number when every
     file has its own (zero padding may differ), else the i-th file for frame i."""
-    by_number = {frame_number(f): f for f in files}
+    by_number = {file_number(f): f for f in files}
     if None not in by_number and len(by_number) == len(files):
-        return [by_number.get(frame_number(f)) for f in frames]
+        return [by_number.get(file_number(f)) for f in frames]
     return [files[i] if i < len(files) else None for i in range(len(frames))]
 
 

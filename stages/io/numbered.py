@@ -10,7 +10,7 @@ from collections.abc import Collection
 from pathlib import Path
 
 from endopipe.pipeline.errors import InputError
-from endopipe.stages.io.tool_masks import file_number
+from endopipe.stages.io.name_numbers import file_number
 
 
 def numbered_files(folder: Path, suffixes: Collection[str], what: str) -> dict[int, Path]:

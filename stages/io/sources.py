@@ -16,7 +16,8 @@ from endopipe.stages.io.images import IMAGE_SUFFIXES, ImageFolderSource
 from endopipe.stages.io.input_source import InputSource
 from endopipe.stages.io.intrinsics import load_intrinsics_file
 from endopipe.stages.io.messages import HINT
-from endopipe.stages.io.tool_masks import TOOLS_DIR, ToolMasks, file_number, masks_for_frames
+from endopipe.stages.io.name_numbers import file_number
+from endopipe.stages.io.tool_masks import TOOLS_DIR, ToolMasks, masks_for_frames
 from endopipe.stages.io.video import VIDEO_SUFFIXES, VideoSource
 
 #: Readers open_input can be told to use (`endopipe batch --format`); "auto" detects.

@@ -7,21 +7,15 @@ mask belongs to the frame whose file carries the same number, not to the same po
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from endopipe.pipeline.cache import digest_path, digest_text
+from endopipe.stages.io.name_numbers import file_number
 
 #: A case folder's tool masks (docs/formats.md), and EndoNeRF's.
 TOOLS_DIR = "masks"
 MASK_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
-
-
-def file_number(path: Path) -> int | None:
-    """The last number in a file's name (`frame-000012.color.png` -> 12); None without one."""
-    digits = re.findall(r"\d+", Path(path).name.split(".")[0]) or re.findall(r"\d+", path.stem)
-    return int(digits[-1]) if digits else None
 
 
 @dataclass(frozen=True)

@@ -32,11 +32,11 @@ from endopipe.stages.io.colmap_model import (
     keep_images,
     read_colmap_model,
     reconstruction_points,
-    trailing_number,
     write_ply,
     write_text_model,
 )
 from endopipe.stages.io.ground_truth import poses_by_frame
+from endopipe.stages.io.name_numbers import file_number
 from endopipe.stages.io.transforms_json import read_transforms_json, write_transforms_json
 from endopipe.stages.metrics.depth import pose_metrics, registered_fraction
 from endopipe.stages.poses.config import MotionConfig, PosesConfig
@@ -507,7 +507,7 @@ def match_names(names: list[str], ingest: IngestView) -> dict[str, int]:
     candidates = []
     for table in (by_name, by_source_name):
         candidates.append({n: table[Path(n).stem] for n in names if Path(n).stem in table})
-    numbers = {n: trailing_number(n) for n in names}
+    numbers = {n: file_number(n) for n in names}
     if len(set(numbers.values())) == len(numbers):
         candidates.append(
             {n: by_source_index[v] for n, v in numbers.items() if v in by_source_index}
