@@ -173,7 +173,13 @@ def load_sparse_depth(
 
 
 def load_stereo_depth(
-    ingest, poses, positions: dict[int, int], box, cfg: NerfConfig, device, log
+    ingest: IngestView,
+    poses: PosesView,
+    positions: dict[int, int],
+    box: SceneBox,
+    cfg: NerfConfig,
+    device: torch.device,
+    log: Callable[[str], None],
 ) -> SparseDepth | None:
     """The stereo rig's depth of the training frames as targets, in millimetres: only with
     metric poses (the poses stage scaled them by the same depth)."""

@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -549,7 +550,7 @@ def align_to(est: Estimate, gt_poses: dict[int, np.ndarray]) -> bool:
 
 
 def scale_by_stereo(
-    est: Estimate, ingest: IngestView, motion: FootageMotion | None, log
+    est: Estimate, ingest: IngestView, motion: FootageMotion | None, log: Callable[[str], None]
 ) -> tuple[StereoScale | None, str | None]:
     """Millimetres from the stereo depth: SfM poses scaled by it at their points; a still
     camera's one pose is its own frame, already in the stereo depth's millimetres. (None,
