@@ -145,9 +145,8 @@ def load_sparse_depth(
     `grey`, the training frames (given when `nerf.loss.sparse_refine`), the points are refined."""
     obs = poses.observations(ingest.index_by_name())
     k = poses.intrinsics
-    if obs is not None and (k.width, k.height) != (ingest.width, ingest.height):
-        scale = np.array([ingest.width / k.width, ingest.height / k.height])
-        obs.uv = (obs.uv + 0.5) * scale - 0.5
+    if obs is not None:
+        obs.resize((k.width, k.height), (ingest.width, ingest.height))
     lc = cfg.loss
     if obs is not None and grey:
         train = {f: poses.c2w[f] for f in grey if f in poses.c2w}

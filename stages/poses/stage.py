@@ -562,9 +562,8 @@ def scale_by_stereo(
         log("metric scale: no SfM points to scale by the stereo depth; the poses stay unscaled")
         return None, None
     obs = reconstruction_observations(est.reconstruction, ingest.index_by_name(), set(est.c2w))
-    k = est.camera
-    if obs is not None and (k.width, k.height) != (ingest.width, ingest.height):
-        obs.uv = (obs.uv + 0.5) * np.array([ingest.width / k.width, ingest.height / k.height]) - 0.5
+    if obs is not None:
+        obs.resize((est.camera.width, est.camera.height), (ingest.width, ingest.height))
     scaled = stereo_scale(obs, est.c2w, ingest.stereo_depth, (ingest.height, ingest.width))
     if scaled is None:
         log("metric scale: too few SfM points have stereo depth; the poses stay unscaled")

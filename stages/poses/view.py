@@ -127,6 +127,12 @@ class SparseObservations:
     error: np.ndarray  # (N,) px
     angle: np.ndarray  # (N,) widest angle between two of the point's viewing rays (degrees)
 
+    def resize(self, size: tuple[int, int], to: tuple[int, int]) -> None:
+        """Move the pixels from a (width, height) grid onto another (the poses' camera may
+        have another resolution than the working frames); pixel centres map to centres."""
+        if size != to:
+            self.uv = (self.uv + 0.5) * np.array([to[0] / size[0], to[1] / size[1]]) - 0.5
+
 
 class PosesView:
     """Typed access to 02_poses: the camera (with its lens), registered frames' c2w, sparse
