@@ -93,3 +93,72 @@ def test_ingest_masks_the_tool_and_keeps_it_per_frame(tmp_path: Path) -> None:
     assert len(view.known_poses()) == N
     frames = json.loads((view.folder / "frames.json").read_text())
     assert frames["tools"].startswith("masks/")
+
+
+def ingest_of(seq: Path, tmp_path: Path) -> IngestView:
+    args = ["run", str(seq), "--workdir", str(tmp_path / "wd"), "--until", "ingest", "--quiet"]
+    assert main([*args, "--set", "ingest.drop_duplicates=false"]) == 0
+    return IngestView(tmp_path / "wd" / seq.name / "01_ingest")
+
+
+def test_depth_in_unnamed_units_supervises_as_a_relative_prior(tmp_path: Path) -> None:
+    """EndoNeRF as released names no unit for depth/: a relative prior, never metric; the
+    depth stage is told its scores are against the maps that supervised."""
+    seq = endonerf_folder(tmp_path)
+    view = ingest_of(seq, tmp_path)
+    assert view.has_depth_prior and not view.has_stereo
+    assert float(np.median(view.depth_prior(3))) == 53.0  # frame-3.depth.png, as it is
+    assert view.truth_supervised(view.ground_truth()) == str((seq / "depth").resolve())
+
+
+def test_depth_in_millimetres_is_metric_and_outside_the_tool_unknown(tmp_path: Path) -> None:
+    """endonerf.json saying mm (endopipe's export and synth): the maps are metric depth, taken
+    as the stereo rig's would be (stereo/, no baseline), unknown under the tool."""
+    seq = endonerf_folder(tmp_path, tool_share=0.25)
+    (seq / "endonerf.json").write_text(json.dumps({"depth_scale": 2.0, "units": "mm"}))
+    view = ingest_of(seq, tmp_path)
+    assert view.has_stereo and not view.has_depth_prior
+    depth = view.stereo_depth(4)
+    assert depth is not None and depth.shape == (H, W)
+    assert (depth[:, :16] == 0).all()  # the tool's pixels: no depth
+    assert np.allclose(depth[:, 16:][depth[:, 16:] > 0], 27.0)  # 54 counts / 2 per mm
+    assert (depth[:, 16:] > 0).mean() > 0.9
+    info = view.file.stereo
+    assert info is not None and info.baseline_mm is None and "given" in info.matcher
+    assert view.summary.stereo is not None and "mm by endonerf.json" in view.summary.stereo
+    assert view.truth_supervised(view.ground_truth()) == str((seq / "depth").resolve())
+
+
+def test_known_poses_are_compared_never_scored() -> None:
+    """The input's own poses check ours: a moving path after a sim3 (in % of their path), a
+    still one by whether ours stand still too."""
+    from endopipe.stages.poses.stage import compare_known
+
+    def at(t: np.ndarray) -> np.ndarray:
+        m = np.eye(4)
+        m[:3, 3] = t
+        return m
+
+    path = {i: at(np.array([i, 0.1 * i * i, 0.0])) for i in range(8)}
+    ours = {i: at(2.0 * m[:3, 3] + [1, 2, 3] + [0.01 * (-1) ** i, 0, 0]) for i, m in path.items()}
+    moving = compare_known(ours, path, "poses_bounds.npy")
+    assert moving.agree is None and 0 < moving.ate_percent_of_path < 0.5
+    assert "not ground truth" in moving.said
+    still = {i: np.diag([1.0, -1.0, -1.0, 1.0]) for i in range(8)}
+    assert compare_known({i: np.eye(4) for i in range(8)}, still, "x").agree is True
+    check = compare_known(ours, still, "x")
+    assert check.agree is False and "unlike ours (moving)" in check.said
+
+
+def test_poses_from_the_inputs_own_file(tmp_path: Path) -> None:
+    """poses.source=known: every frame gets the data set's pose as it is, not a score."""
+    from endopipe.stages.poses.view import PosesView
+
+    seq = endonerf_folder(tmp_path)
+    args = ["run", str(seq), "--workdir", str(tmp_path / "wd"), "--until", "poses", "--quiet"]
+    sets = ["ingest.drop_duplicates=false", "poses.source=known", "poses.motion.check=false"]
+    assert main([*args, *[x for s in sets for x in ("--set", s)]]) == 0
+    poses = PosesView(tmp_path / "wd" / "cutting" / "02_poses")
+    assert len(poses.c2w) == N
+    assert all(np.allclose(m, np.diag([1.0, -1.0, -1.0, 1.0])) for m in poses.c2w.values())
+    assert poses.summary.source == "known" and poses.summary.known_poses is None

@@ -13,12 +13,13 @@ import pytest
 from endopipe.cli import main
 from endopipe.stages.depth.view import DepthView
 from endopipe.stages.ingest.view import IngestView
+from endopipe.stages.mesh.view import MeshView
 from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
 from endopipe.synth import SynthConfig, generate_case
 
 STEPS = ["--set", "nerf.train.steps=400", "--set", "nerf.train.time_budget_s=null"]
-STEPS += ["--set", "nerf.train.threads=1", "--until", "depth"]
+STEPS += ["--set", "nerf.train.threads=1", "--set", "report.include_mesh_viewer=false"]
 
 
 @pytest.fixture(scope="module")
@@ -66,3 +67,23 @@ def test_its_field_changes_with_time_and_its_depth_is_one_viewpoints(still_case:
     guess = m.baselines["brightness"].median_scaled.abs_rel
     assert ours < 0.8 * guess, (ours, guess)  # measured 0.082 against 0.119
     assert m.neighbour_average and m.neighbour_average["psnr"] > 0
+
+
+def test_its_surface_is_meshed_at_several_times_and_shown_moving(still_case: Path):
+    mesh = MeshView(still_case / "06_mesh")
+    times = mesh.time_meshes
+    assert sorted(times) == mesh.summary.time_frames and len(times) == 4
+    assert min(times) == 0 and max(times) == 23  # spread over the whole clip
+    first = np.asarray(mesh.load_time(0).vertices)
+    assert all(len(mesh.load_time(f).faces) > 100 for f in times)
+    # the tool pulls the wall: a later surface departs from the first one where it was pulled
+    from scipy.spatial import cKDTree
+
+    extent = float(np.ptp(first, axis=0).max())
+    gaps = [
+        float(np.percentile(cKDTree(first).query(np.asarray(mesh.load_time(f).vertices))[0], 99))
+        for f in sorted(times)[1:]
+    ]
+    assert max(gaps) > 0.02 * extent, (gaps, extent)  # measured 3.4-4.0% of the extent
+    page = (still_case / "07_report" / "report.html").read_text()
+    assert "The surface over time" in page and "data:image/gif;base64," in page

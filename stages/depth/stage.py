@@ -45,7 +45,7 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    version = 11  # 11: the user's depth prior scored beside ours; 10: metric poses unscaled, stereo
+    version = 12  # 12: says when the truth also supervised; 11: the depth prior scored; 10: stereo
     Config = DepthConfig
     Summary = DepthSummary
     View = DepthView
@@ -104,6 +104,12 @@ class Depth(Stage):
             ctx.out, cfg, ingest, depths, c2w, k, beyond_lens, extrapolated, still
         )
         gt = ingest.ground_truth_for_scores(ctx.log)
+        circular = ingest.truth_supervised(gt)
+        if circular is not None:
+            ctx.log(
+                f"the ground truth's depth ({circular}) also supervised the field: scores "
+                "against it say how closely the field follows it, not how right it is"
+            )
         gt_depths = ground_truth_depths(gt, ingest, list(depths))
         evaluation = evaluate(
             gt,
@@ -171,6 +177,7 @@ class Depth(Stage):
             heldout_psnr=metrics.heldout_psnr,
             heldout_ssim=metrics.heldout_ssim,
             one_viewpoint=still and not stereo,
+            truth_supervised=circular,
             neighbour_psnr=(metrics.neighbour_average or {}).get("psnr"),
             neighbour_ssim=(metrics.neighbour_average or {}).get("ssim"),
         )

@@ -36,6 +36,9 @@ class DepthSummary(Summary):
     heldout_ssim: float | None = None
     #: the camera stood still: every depth from one viewpoint (relative, no parallax)
     one_viewpoint: bool = False
+    #: the ground truth's depth folder when it also supervised the field (EndoNeRF's depth/):
+    #: the scores say how closely the field follows it, not how right it is
+    truth_supervised: str | None = None
     #: the held-out frames predicted by averaging their trained neighbours (no geometry)
     neighbour_psnr: float | None = None
     neighbour_ssim: float | None = None

@@ -15,7 +15,7 @@ from endopipe.stages.ingest.config import IngestConfig
 from endopipe.stages.ingest.masks import combine, fov_mask_for_sequence, specular_mask
 from endopipe.stages.ingest.prior_frames import FramePrior
 from endopipe.stages.ingest.selection import Selection, select_frames
-from endopipe.stages.ingest.stereo_frames import MATCHER, FrameStereo
+from endopipe.stages.ingest.stereo_frames import FrameStereo
 from endopipe.stages.ingest.summary import IngestSummary
 from endopipe.stages.ingest.tool_frames import FrameTools
 from endopipe.stages.ingest.view import (
@@ -41,7 +41,7 @@ class Ingest(Stage):
 
     name = "ingest"
     needs = ()
-    version = 6  # 6: the user's depth prior in depth_prior/; 5: stereo depth in stereo/
+    version = 7  # 7: a data set's metric depth in stereo/, none on tools; 6: depth prior
     Config = IngestConfig
     Summary = IngestSummary
     View = IngestView
@@ -65,7 +65,7 @@ class Ingest(Stage):
         stereo_shares: list[float | None] = []
         tools = FrameTools(source.tool_masks, cfg.tools)
         intrinsics = source_intrinsics(source, selection.source_size, size)
-        stereo = FrameStereo(source.stereo, intrinsics, cfg.stereo)
+        stereo = FrameStereo(source.stereo, intrinsics, cfg.stereo, source.given_depth)
         prior = FramePrior(source.depth_prior, selection.source_size)
         prior_frames = 0
         if tools.active:
@@ -77,15 +77,15 @@ class Ingest(Stage):
                 name = f"{i:06d}.png"
                 cv2.imwrite(str(ctx.out / "frames" / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
                 usable = combine(fov, spec)
+                tool = tools.of(frame.source_index, rgb, fov, size)
+                if tool is not None:  # a tool moves on its own: no depth of it supervises
+                    usable[tool] = 0
+                    tool_fracs.append(float(tool.mean()))
+                    cv2.imwrite(str(ctx.out / "tools" / name), tool.astype(np.uint8) * 255)
                 depth = stereo.of(frame.source_index, rgb, usable) if stereo.active else None
                 relative = prior.of(frame.source_index, size, fov) if prior.active else None
                 prior_frames += relative is not None
                 stereo_shares.append(None if depth is None else stereo.share(depth, fov))
-                tool = tools.of(frame.source_index, rgb, fov, size)
-                if tool is not None:
-                    usable[tool] = 0
-                    tool_fracs.append(float(tool.mean()))
-                    cv2.imwrite(str(ctx.out / "tools" / name), tool.astype(np.uint8) * 255)
                 cv2.imwrite(str(ctx.out / "masks" / name), usable)
                 entries.append(
                     FrameEntry(
@@ -132,7 +132,7 @@ class Ingest(Stage):
         for note in source.notes:
             if note.startswith("--"):  # what the user's --right / --baseline-mm replaced
                 ctx.log(note)
-        if stereo.active or source.stereo is not None:
+        if stereo.active or source.stereo is not None or source.given_depth is not None:
             ctx.log(stereo.line(stereo_shares))
         if prior.active:
             ctx.log(prior.line(prior_frames, len(frames)))
@@ -158,8 +158,8 @@ class Ingest(Stage):
             mean_tool_fraction=float(np.mean(tool_fracs)) if tools.active else None,
             max_tool_fraction=float(max(tool_fracs)) if tools.active else None,
             known_poses=poses_said,
-            stereo=stereo.pairs.source if stereo.active and stereo.pairs else None,
-            stereo_baseline_mm=stereo.pairs.baseline_mm if stereo.active and stereo.pairs else None,
+            stereo=stereo.source if stereo.active else None,
+            stereo_baseline_mm=stereo.baseline_mm if stereo.active else None,
             stereo_coverage=stereo_shares if stereo.active else None,
             stereo_mean_coverage=mean_share(stereo_shares) if stereo.active else None,
             depth_prior=str(source.depth_prior.folder) if source.depth_prior else None,
@@ -188,12 +188,10 @@ def ground_truth_coverage(
 
 
 def stereo_info(stereo: FrameStereo) -> StereoInfo | None:
-    """frames.json's account of the rig its stereo/ depth was matched from."""
-    if not stereo.active or stereo.pairs is None:
+    """frames.json's account of where its stereo/ depth came from (a rig, or the data set)."""
+    if not stereo.active:
         return None
-    return StereoInfo(
-        source=stereo.pairs.source, baseline_mm=stereo.pairs.baseline_mm, matcher=MATCHER
-    )
+    return StereoInfo(source=stereo.source, baseline_mm=stereo.baseline_mm, matcher=stereo.how)
 
 
 def mean_share(shares: list[float | None]) -> float | None:

@@ -1,14 +1,16 @@
 """Whether and how the kept frames get stereo depth: the input's right views matched to each
-left frame at the working size (stereo.py), written to 01_ingest/stereo/.
+left frame at the working size (stereo.py), or the metric depth a data set ships (EndoNeRF's
+depth/ in mm) taken as it is, written to 01_ingest/stereo/.
 
-One place decides (the config's mode, the input's right views, a pinhole camera to measure
-with), so the stage, its log, frames.json and the summary say the same thing.
+One place decides (the config's mode, the input's right views or given depth, a pinhole camera
+to measure with), so the stage, its log, frames.json and the summary say the same thing.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from endopipe.pipeline.errors import InputError
@@ -16,17 +18,26 @@ from endopipe.stages.camera import Camera
 from endopipe.stages.ingest.config import StereoConfig
 from endopipe.stages.ingest.selection import resize
 from endopipe.stages.ingest.stereo import match_depth
+from endopipe.stages.io.given_depth import GivenDepth
 from endopipe.stages.io.stereo_pairs import StereoPairs
 
 STEREO_DIR = "stereo"
 MATCHER = "OpenCV StereoSGBM (3-way), left-right checked"
+GIVEN = "given by the data set, taken as it is (nearest pixel at the working size)"
 
 
 class FrameStereo:
     """Stereo depth for the kept frames, or nothing (`active` False) and why (`skipped`)."""
 
-    def __init__(self, pairs: StereoPairs | None, camera: Camera | None, cfg: StereoConfig) -> None:
+    def __init__(
+        self,
+        pairs: StereoPairs | None,
+        camera: Camera | None,
+        cfg: StereoConfig,
+        given: GivenDepth | None = None,
+    ) -> None:
         self.pairs, self.camera, self.cfg = pairs, camera, cfg
+        self.given = given if pairs is None else None  # a rig is matched; its depth is ours
         self.skipped = self._why_not()
         if self.skipped is not None and cfg.mode == "on":
             raise InputError(
@@ -36,6 +47,8 @@ class FrameStereo:
     def _why_not(self) -> str | None:
         if self.cfg.mode == "off":
             return "ingest.stereo.mode=off"
+        if self.pairs is None and self.given is not None:
+            return None
         if self.pairs is None:
             return "the input has no rectified right views with a baseline"
         if self.camera is None:
@@ -51,12 +64,40 @@ class FrameStereo:
     def of(self, source_index: int, left: np.ndarray, usable: np.ndarray) -> np.ndarray | None:
         """float32 z-depth (mm, 0 = unknown) of a kept frame (working size), matched only where
         `usable` (the field of view without highlights); None when it has no right view."""
+        if self.given is not None:
+            return self._given(source_index, left, usable)
         assert self.pairs is not None and self.camera is not None
         right = self.pairs.right(source_index)
         if right is None:
             return None
         right = resize(right, (left.shape[1], left.shape[0]))
         return match_depth(left, right, self.camera.fx, self.pairs.baseline_mm, self.cfg, usable)
+
+    def _given(self, source_index: int, left: np.ndarray, usable: np.ndarray) -> np.ndarray | None:
+        assert self.given is not None
+        depth = self.given.depth(source_index)
+        if depth is None:
+            return None
+        h, w = left.shape[:2]
+        if depth.shape != (h, w):  # nearest: a mean across an edge is a depth nothing has
+            depth = cv2.resize(depth, (w, h), interpolation=cv2.INTER_NEAREST)
+        return np.where(usable > 0, depth, 0.0).astype(np.float32)
+
+    @property
+    def source(self) -> str:
+        """Where the depth came from: the rig's right views, or the data set's maps."""
+        if self.given is not None:
+            return self.given.source
+        assert self.pairs is not None
+        return self.pairs.source
+
+    @property
+    def baseline_mm(self) -> float | None:
+        return self.pairs.baseline_mm if self.pairs is not None else None
+
+    @property
+    def how(self) -> str:
+        return GIVEN if self.given is not None else MATCHER
 
     @staticmethod
     def share(depth: np.ndarray, fov: np.ndarray) -> float:
@@ -78,6 +119,11 @@ class FrameStereo:
             return f"stereo: none ({self.skipped})"
         got = [s for s in shares if s is not None]
         mean = f", {np.mean(got):.0%} of the field of view on average" if got else ""
+        if self.given is not None:
+            return (
+                f"stereo depth for {len(got)} of {len(shares)} frames ({self.given.source}, "
+                f"{GIVEN}){mean}: metric, in 01_ingest/{STEREO_DIR}/"
+            )
         assert self.pairs is not None
         return (
             f"stereo depth for {len(got)} of {len(shares)} frames ({self.pairs.source}, baseline "

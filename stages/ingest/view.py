@@ -69,11 +69,13 @@ class KnownPoses(BaseModel):
 
 
 class StereoInfo(BaseModel):
-    """The rig the stereo depth in stereo/ was matched from."""
+    """Where the stereo depth in stereo/ came from: a rig matched here, or a data set's maps."""
 
-    source: str = Field(description="where the right views and the baseline were read")
-    baseline_mm: float = Field(description="distance between the eyes, mm")
-    matcher: str = Field(description="how the depth was matched")
+    source: str = Field(description="where the right views and baseline, or the maps, were read")
+    baseline_mm: float | None = Field(
+        description="distance between the eyes, mm; None: the data set's own depth maps"
+    )
+    matcher: str = Field(description="how the depth was matched, or that it was given")
 
 
 class FramesFile(BaseModel):
@@ -250,6 +252,22 @@ class IngestView:
     def ground_truth(self) -> GroundTruthSource | None:
         """The input's ground truth (any format `open_ground_truth` reads), or None."""
         return open_ground_truth(self.gt_dir) if self.gt_dir is not None else None
+
+    def truth_supervised(self, gt: GroundTruthSource | None) -> str | None:
+        """The folder when the depth that supervised the field (a depth prior, a data set's own
+        depth) is the ground truth's own maps (EndoNeRF's depth/ both): scores against it are
+        then no independent check. None otherwise."""
+        depth_file = getattr(gt, "depth_file", None)
+        if depth_file is None or not self.frames:
+            return None
+        first = depth_file(self.frames[0].source_index)
+        if first is None:
+            return None
+        folder = Path(first).resolve().parent
+        given = [self.file.depth_prior]
+        if self.file.stereo is not None and self.file.stereo.baseline_mm is None:
+            given.append(self.file.stereo.source.split(" (")[0])
+        return str(folder) if any(g and Path(g).resolve() == folder for g in given) else None
 
     def ground_truth_for_scores(self, log: Callable[[str], None]) -> GroundTruthSource | None:
         """The ground truth where it only scores a stage's output: one that can no longer be

@@ -18,8 +18,10 @@ identity pose (the scope is held still). They are exposed as the input's `known_
 never as ground truth, so nothing is scored against them (no ATE on a made-up path). Their
 rotation columns are read as a NeRF c2w (right, up, back: EndoNeRF's `davinci_endoscopic`
 loader) unless `endonerf.json` names other axes. The depth comes from stereo matching: ground
-truth of kind `pseudo`, as Hamlyn's. A synthetic case written in this layout keeps its exact
-`gt/` beside it, which is read instead.
+truth of kind `pseudo`, as Hamlyn's, and it also supervises (`attach_depth`): as metric depth
+when `endonerf.json` says millimetres, else as a relative depth prior (a score against the same
+maps is then no independent check, and the depth stage says so). A synthetic case written in
+this layout keeps its exact `gt/` beside it, which is read instead.
 """
 
 from __future__ import annotations
@@ -30,9 +32,12 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from endopipe.pipeline.cache import digest_path, digest_text
 from endopipe.pipeline.errors import InputError
 from endopipe.stages.camera import Camera
+from endopipe.stages.io.depth_prior import DepthPrior
 from endopipe.stages.io.frame_truth import PerFrameGroundTruth
+from endopipe.stages.io.given_depth import GivenDepth
 from endopipe.stages.io.ground_truth import (
     GroundTruthSource,
     holds_case_truth,
@@ -174,12 +179,37 @@ def open_sequence(path: Path, intrinsics: Camera | None = None) -> EndoNeRFSourc
     has_gt = (path / "depth").is_dir() or holds_case_truth(path / "gt")
     source = EndoNeRFSource(path, files, intrinsics, path if has_gt else None)
     source.tool_masks = masks_for_frames(path / "masks", [file_number(f) for f in files])
+    if (path / "depth").is_dir():
+        attach_depth(source, path)
     if len(rows) == len(files):  # rows follow the frames; otherwise no frame's pose is known
         axes = str(metadata(path).get("axes", DEFAULT_AXES))
         axes = axes if axes in LLFF_COLUMNS else DEFAULT_AXES
         source.known_poses = [c2w_from_llff(r[:15].reshape(3, 5), axes) for r in rows]
         source.known_poses_from = f"{path / POSES_FILE} (the data set's own, axes {axes})"
     return source
+
+
+def attach_depth(source: EndoNeRFSource, path: Path) -> None:
+    """depth/ supervises: as metric depth when endonerf.json says it is millimetres (endopipe's
+    export and synth), else as a relative depth prior, since EndoNeRF as released names no
+    unit (its loaders scale it by hand)."""
+    maps = EndoNeRFGroundTruth(path)
+    files = {i: f for i in range(len(source.files)) if (f := maps.depth_file(i)) is not None}
+    if not files:
+        return
+    identity = digest_text("|".join(f"{i}:{digest_path(f)}" for i, f in sorted(files.items())))
+    if maps.units != "mm":
+        source.depth_prior = DepthPrior(path / "depth", files)
+        return
+    # depth_scale counts a unit of the poses, which are mm x pose_scale (endopipe's --for export)
+    per_mm = float(metadata(path).get("pose_scale") or 1.0)
+
+    def depth_mm(source_index: int) -> np.ndarray | None:
+        depth = maps.depth(source_index)
+        return None if depth is None else depth / np.float32(per_mm)
+
+    said = f"{path / 'depth'} (the data set's depth, mm by {META_FILE})"
+    source.given_depth = GivenDepth(depth_mm, said, f"{identity}|{per_mm:g}")
 
 
 def ground_truth(path: Path) -> GroundTruthSource:

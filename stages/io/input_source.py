@@ -11,6 +11,7 @@ import numpy as np
 from endopipe.pipeline.cache import digest_path, digest_text
 from endopipe.stages.camera import Camera
 from endopipe.stages.io.depth_prior import DepthPrior
+from endopipe.stages.io.given_depth import GivenDepth
 from endopipe.stages.io.ground_truth import GroundTruthSource, open_case_truth
 from endopipe.stages.io.stereo_pairs import StereoPairs
 from endopipe.stages.io.tool_masks import ToolMasks
@@ -42,6 +43,8 @@ class InputSource:
         self.stereo: StereoPairs | None = None
         #: Depth maps made elsewhere (`--depth-prior`), relative: by source_index, or None.
         self.depth_prior: DepthPrior | None = None
+        #: Metric depth the data set ships (EndoNeRF's depth/ in mm), by source_index, or None.
+        self.given_depth: GivenDepth | None = None
         #: One line each of what the reader did to the input that the run should say (frames
         #: cropped to one size, a lens fitted to the data set's calibration).
         self.notes: list[str] = []
@@ -57,9 +60,9 @@ class InputSource:
 
     def given_digests(self) -> list[str]:
         """What came with the frames and makes the ingest key too (any reader's digest adds
-        them): the intrinsics, tool masks, right views and depth prior, those given."""
+        them): the intrinsics, tool masks, right views, depth prior and depth, those given."""
         parts = [self.intrinsics.model_dump_json()] if self.intrinsics is not None else []
-        for given in (self.tool_masks, self.stereo, self.depth_prior):
+        for given in (self.tool_masks, self.stereo, self.depth_prior, self.given_depth):
             if given is not None:
                 parts.append(given.digest())
         return parts

@@ -25,6 +25,13 @@ class MeshConfig(StageConfig):
         "(tsdf: that frame's depth alone; fusing every time would average the motion). None: "
         "the first registered frame.",
     )
+    times: int = Field(
+        4,
+        ge=0,
+        description="A scene that moves: also a surface at this many frames spread evenly over "
+        "the clip (06_mesh/times/mesh_<frame>.ply, tsdf), so the report shows it moving. 0: "
+        "none.",
+    )
     voxel_size: float | None = Field(
         None, gt=0, description="TSDF voxel size in cameras.json units; overrides the above."
     )

@@ -53,10 +53,11 @@ from endopipe.stages.mesh.evaluation import (
 )
 from endopipe.stages.mesh.metrics_file import MeshMetrics
 from endopipe.stages.mesh.summary import MeshSummary
-from endopipe.stages.mesh.view import MeshView, save_mesh
+from endopipe.stages.mesh.view import MeshView, save_mesh, save_time_mesh
 from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
 from endopipe.stages.surface.clean import clean_mesh
+from endopipe.stages.surface.mesh import RawMesh
 
 
 def _finite(v: Any) -> Any:
@@ -75,7 +76,7 @@ class Mesh(Stage):
 
     name = "mesh"
     needs = ("ingest", "poses", "centerline", "nerf", "depth")
-    version = 4  # 4: metric poses in their own frame (a stereo rig) are aligned rigidly
+    version = 5  # 5: a scene that moves gets a surface per chosen time; 4: rigid alignment
     Config = MeshConfig
     Summary = MeshSummary
     View = MeshView
@@ -94,7 +95,7 @@ class Mesh(Stage):
 
         t0 = time.perf_counter()
         if cfg.method == "tsdf":
-            c2w = nerf.c2w(poses)  # the poses the depth maps were rendered at
+            c2w = every = nerf.c2w(poses)  # the poses the depth maps were rendered at
             if nerf.dynamic:  # a scene that moves: one time's surface
                 frame = poses.registered[0] if cfg.frame is None else cfg.frame
                 if frame not in c2w:
@@ -117,20 +118,16 @@ class Mesh(Stage):
             )
 
         t1 = time.perf_counter()
-        mesh, clean_info = clean_mesh(
-            raw,
-            min_component_fraction=cfg.min_component_fraction,
-            min_component_diameter=cfg.min_component_diameter * radius,
-            smooth_iterations=cfg.smooth_iterations,
-            taubin_lambda=cfg.taubin_lambda,
-            taubin_mu=cfg.taubin_mu,
-        )
+        mesh, clean_info = cleaned(raw, cfg, radius)
         clean_s = time.perf_counter() - t1
         ctx.log(
             f"clean-up: {clean_info['components_removed']} small components removed; mesh.ply: "
             f"{len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces"
         )
         save_mesh(ctx.out, mesh, obj=cfg.export_obj)
+        time_frames: list[int] = []
+        if cfg.method == "tsdf" and nerf.dynamic and cfg.times:
+            time_frames = mesh_times(ctx, depth, poses, ingest, every, radius)
 
         evaluation: dict[str, Any] = {"evaluated": False}
         centres = poses.centres()
@@ -195,4 +192,45 @@ class Mesh(Stage):
             completeness=metrics.completeness,
             fscore=metrics.fscore,
             off_seen_pct=metrics.off_seen_pct,
+            time_frames=time_frames,
         )
+
+
+def cleaned(raw: RawMesh, cfg: MeshConfig, radius: float) -> tuple[RawMesh, dict]:
+    """The clean-up every surface of the stage gets (floaters dropped, Taubin smoothing)."""
+    return clean_mesh(
+        raw,
+        min_component_fraction=cfg.min_component_fraction,
+        min_component_diameter=cfg.min_component_diameter * radius,
+        smooth_iterations=cfg.smooth_iterations,
+        taubin_lambda=cfg.taubin_lambda,
+        taubin_mu=cfg.taubin_mu,
+    )
+
+
+def mesh_times(
+    ctx: StageContext[MeshConfig],
+    depth: DepthView,
+    poses: PosesView,
+    ingest: IngestView,
+    c2w: dict[int, np.ndarray],
+    radius: float,
+) -> list[int]:
+    """A scene that moves: each of `mesh.times` frames, spread evenly over the registered ones,
+    gets its own surface from its depth alone (times/), cleaned as mesh.ply is. A frame whose
+    surface comes out empty is said and skipped."""
+    cfg = ctx.config
+    frames = [f for f in poses.registered if f in c2w]
+    picks = np.unique(np.round(np.linspace(0, len(frames) - 1, min(cfg.times, len(frames)))))
+    done = []
+    for k in picks.astype(int):
+        frame = frames[k]
+        raw, _ = fuse_depth(depth, poses, cfg, radius, ingest.image, {frame: c2w[frame]})
+        if raw.empty:
+            ctx.log(f"frame {frame}: no surface at its time")
+            continue
+        mesh, _ = cleaned(raw, cfg, radius)
+        save_time_mesh(ctx.out, frame, mesh)
+        done.append(frame)
+    ctx.log(f"a surface at each of frames {', '.join(map(str, done))}: 06_mesh/times/")
+    return done

@@ -25,3 +25,5 @@ class MeshSummary(Summary):
     threshold: float | None = None
     aligned: str | None = None
     off_seen_pct: float | None = None  # share of the mesh far from any surface a camera saw
+    #: a scene that moves: the frames with a surface of their own in times/ (mesh.times)
+    time_frames: list[int] = []

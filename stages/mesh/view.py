@@ -1,4 +1,5 @@
-"""06_mesh (docs/formats.md): mesh.ply (optionally mesh.obj) and metrics.json, written and read here
+"""06_mesh (docs/formats.md): mesh.ply (optionally mesh.obj), times/ (a scene that moves) and
+metrics.json, written and read here
 only: the mesh stage saves through `save_mesh` and `MeshMetrics.write` (metrics_file.py),
 everyone else reads through `MeshView`."""
 
@@ -14,6 +15,8 @@ from endopipe.stages.surface.mesh import RawMesh, read_mesh, write_mesh
 
 MESH_FILE = "mesh.ply"
 OBJ_FILE = "mesh.obj"
+#: a scene that moves: one surface per chosen frame, times/mesh_<frame>.ply
+TIMES_DIR = "times"
 
 
 def save_mesh(folder: Path, mesh: RawMesh, obj: bool = False) -> None:
@@ -21,6 +24,12 @@ def save_mesh(folder: Path, mesh: RawMesh, obj: bool = False) -> None:
     write_mesh(Path(folder) / MESH_FILE, mesh)
     if obj:
         write_mesh(Path(folder) / OBJ_FILE, mesh)
+
+
+def save_time_mesh(folder: Path, frame: int, mesh: RawMesh) -> None:
+    """times/mesh_<frame>.ply: the surface at one frame's time, frame and units as mesh.ply."""
+    (Path(folder) / TIMES_DIR).mkdir(exist_ok=True)
+    write_mesh(Path(folder) / TIMES_DIR / f"mesh_{frame:06d}.ply", mesh)
 
 
 class MeshView:
@@ -46,3 +55,14 @@ class MeshView:
 
     def load(self) -> RawMesh:
         return read_mesh(self.mesh_path)
+
+    @property
+    def time_meshes(self) -> dict[int, Path]:
+        """A scene that moves: the surface file of each frame that has one, by frame index."""
+        folder = self.folder / TIMES_DIR
+        if not folder.is_dir():
+            return {}
+        return {int(p.stem.split("_")[-1]): p for p in sorted(folder.glob("mesh_*.ply"))}
+
+    def load_time(self, frame: int) -> RawMesh:
+        return read_mesh(self.time_meshes[frame])

@@ -135,10 +135,12 @@ class VerdictConfig(BaseModel):
 
 
 class PosesConfig(StageConfig):
-    source: Literal["colmap", "gt", "file"] = Field(
+    source: Literal["colmap", "gt", "file", "known"] = Field(
         "colmap",
         description="Where poses come from: COLMAP SfM on the frames, the input's ground truth "
-        "(a case's gt/poses.json or a data set's pose files), or poses.file.",
+        "(a case's gt/poses.json or a data set's pose files), poses.file, or the poses the input "
+        "came with that are not ground truth (known: EndoNeRF's poses_bounds.npy, SCARED's "
+        "kinematics), taken as they are. With colmap, SfM's path is compared with known poses.",
     )
     file: str | None = Field(
         None,

@@ -52,7 +52,7 @@ from endopipe.stages.poses.lens import (
 )
 from endopipe.stages.poses.motion import FootageMotion, footage_fps, judge_motion
 from endopipe.stages.poses.stereo_scale import stereo_scale
-from endopipe.stages.poses.summary import PosesSummary, StereoScale
+from endopipe.stages.poses.summary import KnownPosesCheck, PosesSummary, StereoScale
 from endopipe.stages.poses.verdict import (
     FrameVerdict,
     PoseVerdict,
@@ -74,7 +74,7 @@ class Poses(Stage):
 
     name = "poses"
     needs = ("ingest",)
-    version = 7  # 7: metric from a stereo rig's depth
+    version = 8  # 8: the input's own poses used (source=known) or compared; 7: stereo scale
     Config = PosesConfig
     Summary = PosesSummary
     View = PosesView
@@ -102,6 +102,8 @@ class Poses(Stage):
             est = from_ground_truth(ingest, gt_poses)
         elif cfg.source == "file":
             est = from_file(ingest, cfg)
+        elif cfg.source == "known":
+            est = from_known(ingest)
         elif motion is not None and motion.camera == "still":
             est = from_still_camera(ingest, cfg, motion)
         else:
@@ -143,6 +145,9 @@ class Poses(Stage):
                 },
             }
 
+        known = known_agreement(est, ingest, cfg.source)
+        if known is not None:
+            ctx.log(known.said)
         verdict = assess(est, cfg, ingest)
         verdict.motion = motion
         gate(verdict, cfg)
@@ -177,6 +182,7 @@ class Poses(Stage):
             lens_reach=lens_reach(k, ingest),
             fitted_radius_px=est.fitted_radius_px,
             motion=motion,
+            known_poses=known,
         )
         ctx.log(
             f"registered {summary.registered}/{n} frames ({100 * summary.registered_fraction:.0f}%)"
@@ -305,6 +311,64 @@ def from_ground_truth(ingest: IngestView, gt_poses: dict[int, np.ndarray] | None
     return Estimate(
         camera=k, colmap_model=camera_to_colmap(k)[0], c2w=dict(gt_poses), info={"models": 0}
     )
+
+
+def from_known(ingest: IngestView) -> Estimate:
+    """The poses the input came with (not ground truth), as they are: a data set's own account
+    of where its camera was, used when SfM cannot say (a still scope, tissue that moves)."""
+    known = ingest.known_poses()
+    if not known:
+        raise InputError(
+            "poses.source=known but the input came with no poses of its own (EndoNeRF's "
+            "poses_bounds.npy, SCARED's frame_data/); use poses.source=colmap"
+        )
+    if ingest.intrinsics is None:
+        raise InputError(
+            "poses.source=known needs known intrinsics (--intrinsics FILE, or the data set's "
+            "calibration)"
+        )
+    k = ingest.intrinsics
+    return Estimate(
+        camera=k,
+        colmap_model=camera_to_colmap(k)[0],
+        c2w=dict(known),
+        intrinsics_kind="fixed",
+        info={"models": 0},
+    )
+
+
+def known_agreement(est: Estimate, ingest: IngestView, source: str) -> KnownPosesCheck | None:
+    """The poses kept beside the input's own (None when it has none, or they are the ones
+    kept)."""
+    known = ingest.known_poses()
+    if not known or source == "known" or ingest.file.known_poses is None:
+        return None
+    return compare_known(est.c2w, known, ingest.file.known_poses.source)
+
+
+def compare_known(
+    ours: dict[int, np.ndarray], known: dict[int, np.ndarray], origin: str
+) -> KnownPosesCheck:
+    """A path both measure is compared after a sim3 on the camera centres (ATE, % of the known
+    path); a still one only by whether the other stands still too."""
+    common = sorted(set(ours) & set(known))
+    if len(common) < 3:
+        return KnownPosesCheck(source=origin, said=f"known poses ({origin}): too few in common")
+    path = [np.asarray(known[i])[:3, 3] for i in common]
+    known_still = max(float(np.linalg.norm(p - path[0])) for p in path) == 0.0
+    ours_still = len({tuple(np.round(ours[i][:3, 3], 9)) for i in common}) == 1
+    if known_still or ours_still:
+        agree = known_still == ours_still
+        said = f"known poses ({origin}): " + ("they stand still" if known_still else "they move")
+        mine = "still" if ours_still else "moving"
+        said += ", as ours do" if agree else f", unlike ours ({mine})"
+        return KnownPosesCheck(source=origin, agree=agree, said=said)
+    pct = float(pose_metrics(ours, {i: known[i] for i in common})["ate_percent_of_path"])
+    said = (
+        f"known poses ({origin}): ours agree with them to {pct:.2f}% of their path (ATE after a "
+        f"sim3 on {len(common)} camera centres; they are not ground truth, so this is no score)"
+    )
+    return KnownPosesCheck(source=origin, ate_percent_of_path=pct, said=said)
 
 
 def clean_scratch(scratch: Path, keep_database: bool, work: tuple[str, ...]) -> None:

@@ -3,11 +3,23 @@
 
 from __future__ import annotations
 
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 
 from endopipe.pipeline.stage import Summary
 from endopipe.stages.poses.lens import LensRefit
 from endopipe.stages.poses.motion import FootageMotion
+
+
+class KnownPosesCheck(BaseModel):
+    """The poses kept beside the poses the input came with (EndoNeRF's poses_bounds.npy,
+    SCARED's kinematics): not ground truth, so a check, never a score."""
+
+    source: str = Field(description="where the input's own poses were read")
+    #: both stand still or both move (None: compared by their paths instead)
+    agree: bool | None = None
+    #: ATE after a sim3 on the camera centres, % of the known path (None: a still one)
+    ate_percent_of_path: float | None = None
+    said: str = Field(description="the comparison in words")
 
 
 class StereoScale(BaseModel):
@@ -75,3 +87,5 @@ class PosesSummary(Summary):
     stereo_scale: StereoScale | None = None
     #: whether the camera moved and the scene held still, judged before SfM (None: not judged)
     motion: FootageMotion | None = None
+    #: the poses kept against the input's own (None: it came with none, or they were kept)
+    known_poses: KnownPosesCheck | None = None

@@ -29,6 +29,25 @@ def image_uri(rgb: np.ndarray, fmt_: str = "png", quality: int = 88) -> str:
     return f"data:{mime};base64,{base64.b64encode(buf.tobytes()).decode()}"
 
 
+def gif_uri(frames: list[np.ndarray], seconds_per_frame: float = 0.6) -> str:
+    """RGB uint8 images of one size as an endlessly looping animated GIF data URI."""
+    import io
+
+    from PIL import Image
+
+    images = [Image.fromarray(np.asarray(f)).convert("P", palette=Image.ADAPTIVE) for f in frames]
+    buf = io.BytesIO()
+    images[0].save(
+        buf,
+        format="GIF",
+        save_all=True,
+        append_images=images[1:],
+        duration=int(1000 * seconds_per_frame),
+        loop=0,
+    )
+    return f"data:image/gif;base64,{base64.b64encode(buf.getvalue()).decode()}"
+
+
 def file_image_uri(
     path: Path | None, max_width: int = 1100, fmt_: str = "png", quality: int = 88
 ) -> str | None:

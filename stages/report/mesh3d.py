@@ -57,6 +57,19 @@ def principal_axes(vertices: np.ndarray) -> np.ndarray:
     return axes
 
 
+def view_framing(
+    vertices: np.ndarray, right: np.ndarray, up: np.ndarray
+) -> tuple[float, float, float, float]:
+    """The centre and extent (x, y, width, height) of vertices seen along right x up."""
+    x, y = vertices @ right, -(vertices @ up)
+    return (
+        float(x.max() + x.min()) / 2,
+        float(y.max() + y.min()) / 2,
+        float(np.ptp(x)),
+        float(np.ptp(y)),
+    )
+
+
 def render_mesh_view(
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -65,18 +78,20 @@ def render_mesh_view(
     up: np.ndarray,
     width: int = 460,
     supersample: int = 2,
+    framing: tuple[float, float, float, float] | None = None,
 ) -> np.ndarray:
     """An orthographic, two-sided rendering (painter's algorithm with OpenCV): a head light
-    plus a key light from the upper left. The height follows the mesh's extent (clamped).
+    plus a key light from the upper left. The height follows the mesh's extent (clamped), or
+    `framing` (`view_framing`'s, so that several meshes share one).
 
     Hand-written on purpose: no installed library renders headless here. open3d's
     OffscreenRenderer needs Vulkan or EGL with a GPU ("Failed to load vulkan library"),
     trimesh's Scene.save_image needs a pyglet window, pyrender is not installed."""
     fwd = np.cross(right, -up)  # camera looks along fwd, image x = right, image y = -up
     x, y, z = vertices @ right, -(vertices @ up), vertices @ fwd
-    x = x - (x.max() + x.min()) / 2
-    y = y - (y.max() + y.min()) / 2
-    ex, ey = max(float(np.ptp(x)), 1e-12), max(float(np.ptp(y)), 1e-12)
+    cx, cy, ex, ey = framing if framing is not None else view_framing(vertices, right, up)
+    x, y = x - cx, y - cy
+    ex, ey = max(ex, 1e-12), max(ey, 1e-12)
     height = int(np.clip(width * ey / ex, 0.3 * width, 0.9 * width))
     w, h = width * supersample, height * supersample
     s = 0.9 * min(w / ex, h / ey)

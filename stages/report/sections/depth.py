@@ -59,6 +59,11 @@ def support_line(s: DepthSummary, dm: DepthMetrics | None) -> str | None:
         if a is not None and b is not None:
             name = "SSI-AbsRel" if dm.gt_kind == "relative" else "AbsRel"
             line += f"; {name} {a:.4f} where seen again, {b:.4f} on the rest"
+    if s.truth_supervised:
+        line += (
+            f". The ground truth's depth ({s.truth_supervised}) also supervised the field: the "
+            "scores say how closely the field follows it, not how right it is"
+        )
     if s.one_viewpoint:
         line = (
             "The camera stood still: no pixel was seen from two places. Every depth here is "

@@ -22,8 +22,8 @@ def section_input(data: CaseData, info: ReportInfo) -> str | None:
 
 
 def stereo_line(ing: IngestSummary | None) -> str | None:
-    """Which frames had a right view matched, and how much of each the stereo depth covers
-    (None without stereo)."""
+    """Which frames had a right view matched (or came with metric depth), and how much of each
+    the stereo depth covers (None without stereo)."""
     if ing is None or ing.stereo is None or not ing.stereo_coverage:
         return None
     matched = [i for i, c in enumerate(ing.stereo_coverage) if c is not None]
@@ -35,5 +35,6 @@ def stereo_line(ing: IngestSummary | None) -> str | None:
         f"{ranges(matched)}) matched, covering {min(shares):.0%}-{max(shares):.0%} of the "
         f"view (mean {sum(shares) / len(shares):.0%})"
     )
-    baseline = f", baseline {ing.stereo_baseline_mm:.2f} mm" if ing.stereo_baseline_mm else ""
-    return f"{line}; right views from {ing.stereo}{baseline}"
+    if not ing.stereo_baseline_mm:  # no rig: the data set's own metric depth
+        return f"{line.replace(' matched,', ' with depth,')}; depth maps from {ing.stereo}"
+    return f"{line}; right views from {ing.stereo}, baseline {ing.stereo_baseline_mm:.2f} mm"

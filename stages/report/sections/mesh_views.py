@@ -5,7 +5,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from endopipe.stages.report.images import image_uri
+import numpy as np
+
+from endopipe.stages.report.images import gif_uri, image_uri
 from endopipe.stages.report.kit import one_line
 from endopipe.stages.report.load import CaseData
 from endopipe.stages.report.mesh3d import (
@@ -14,6 +16,7 @@ from endopipe.stages.report.mesh3d import (
     principal_axes,
     render_mesh_view,
     shown_colours,
+    view_framing,
 )
 from endopipe.stages.report.sections.common import Figure, ReportInfo
 
@@ -32,6 +35,10 @@ class MeshViews:
     viewer: str | None = None  # the viewer's page, for an iframe
     viewer_problem: str | None = None
     views: list[Figure] = field(default_factory=list)
+    #: a scene that moves: its surface at each chosen time (06_mesh/times/), then all of them
+    #: looping
+    times: list[Figure] = field(default_factory=list)
+    moving: Figure | None = None
 
 
 def mesh_views(data: CaseData, info: ReportInfo) -> MeshViews:
@@ -72,4 +79,30 @@ def mesh_views(data: CaseData, info: ReportInfo) -> MeshViews:
         for label, right, up in defs:
             img = render_mesh_view(v, f, c, right, up)
             shown.views.append(Figure(image_uri(img, "jpg", cfg.jpeg_quality), label))
+    time_views(data, shown, principal_axes(v))
     return shown
+
+
+def time_views(data: CaseData, shown: MeshViews, axes: np.ndarray) -> None:
+    """A scene that moves: each time's surface along mesh.ply's first two principal axes,
+    framed alike and without colour (the relief is what moves), as stills and as a loop."""
+    try:
+        meshes = {f: data.mesh.load_time(f) for f in data.mesh.time_meshes}
+    except Exception as e:  # noqa: BLE001 - the main views stand without them
+        shown.times = [Figure("", f"06_mesh/times/ unreadable: {one_line(e)}")]
+        return
+    meshes = {f: m for f, m in meshes.items() if len(m.faces)}
+    if len(meshes) < 2:
+        return
+    right, up = axes[0], axes[1]
+    every = np.concatenate([np.asarray(m.vertices) for m in meshes.values()])
+    framing = view_framing(every, right, up)
+    cfg = data.cfg
+    images = []
+    for frame, mesh in meshes.items():
+        v, f, _ = decimate(mesh.vertices, mesh.faces, cfg.mesh_max_faces)
+        img = render_mesh_view(v, f, None, right, up, width=300, framing=framing)
+        images.append(img)
+        shown.times.append(Figure(image_uri(img, "jpg", cfg.jpeg_quality), f"frame {frame}"))
+    frames = ", ".join(map(str, meshes))
+    shown.moving = Figure(gif_uri(images), f"frames {frames}, looping")
