@@ -374,7 +374,8 @@ def synth(
         bool,
         typer.Option(
             "--stereo",
-            help="A right eye 5 mm along +x too (--layout hamlyn: image02/, extrinsics.txt).",
+            help="A right eye 5 mm along +x too (--layout hamlyn: image02/, extrinsics.txt; "
+            "scared: its right view; endonerf: depth/ matched from it, as EndoNeRF's own).",
         ),
     ] = False,
 ) -> None:

@@ -2,9 +2,12 @@
 that was run (`endopipe synth --layout endonerf`): the same files and conventions as the
 `endonerf` export (`endonerf.py`, whose writers it uses), with the masks the scene's tools.
 
-Depth is the exact z-depth; near / far per frame are its 0.1 / 99.9 percentiles (LLFF's rule);
-the depth scale (100 when the deepest value fits) needs the whole sequence, so the depth PNGs
-are written at the end.
+Depth is the exact z-depth, or with a right eye (`--stereo`) the depth the project's stereo
+matcher finds on the rendered pair, as EndoNeRF's own depth/ was matched from its rig: then it
+is a measurement with a measurement's holes and errors, and the exact truth stays in gt/.
+Near / far per frame are the depth's 0.1 / 99.9 percentiles (LLFF's rule); the depth scale
+(100 when the deepest value fits) needs the whole sequence, so the depth PNGs are written at
+the end.
 """
 
 from __future__ import annotations
@@ -27,24 +30,41 @@ from endopipe.export.endonerf import (
 )
 from endopipe.pipeline.stage import write_json
 from endopipe.stages.camera import Camera
+from endopipe.stages.ingest.config import StereoConfig
+from endopipe.stages.ingest.stereo import match_depth
+from endopipe.stages.ingest.stereo_frames import MATCHER
 
 
 class EndoNerfSink:
     """images/, masks/ (255 = tool), depth/, poses_bounds.npy and endonerf.json in `out`.
     A lens the pinhole-only format cannot carry is refused here, before anything is rendered."""
 
-    def __init__(self, out: Path, camera: Camera, axes: str = "llff") -> None:
+    def __init__(
+        self, out: Path, camera: Camera, axes: str = "llff", baseline_mm: float | None = None
+    ) -> None:
         self.notes = pinhole_notes(camera)
         self.out, self.camera, self.axes = Path(out), camera, axes
+        self.baseline = baseline_mm
         for sub in ("images", "masks", "depth"):
             (self.out / sub).mkdir(parents=True, exist_ok=True)
         self.depths: list[np.ndarray] = []
 
-    def add_frame(self, rgb: np.ndarray, depth: np.ndarray, tool: np.ndarray | None) -> None:
+    def add_frame(
+        self,
+        rgb: np.ndarray,
+        depth: np.ndarray,
+        tool: np.ndarray | None,
+        right: np.ndarray | None = None,
+    ) -> None:
         n = len(self.depths)
         cv2.imwrite(str(frame_file(self.out, "images", n)), rgb[:, :, ::-1])
         excluded = np.zeros(depth.shape, bool) if tool is None else tool
         write_mask(self.out, n, excluded)
+        if self.baseline is not None:
+            if right is None:
+                raise ValueError("a stereo EndoNeRF case needs every frame's right eye")
+            usable = np.where(excluded, 0, 255).astype(np.uint8)
+            depth = match_depth(rgb, right, self.camera.fx, self.baseline, StereoConfig(), usable)
         self.depths.append(depth.astype(np.float32))
 
     def finish(self, poses: np.ndarray) -> None:
@@ -66,6 +86,9 @@ class EndoNerfSink:
                 "camera": PINHOLE_ONLY,
                 "masks": "255 = tool (excluded), 0 = tissue",
                 "units": "mm",
+                "depth": "exact synthetic truth"
+                if self.baseline is None
+                else f"{MATCHER} on the rendered pair, baseline {self.baseline:g} mm",
                 "notes": self.notes,
             },
         )

@@ -176,3 +176,36 @@ def test_endonerf_layout_instead_of_the_frames(tmp_path: Path) -> None:
     with pytest.raises(EndopipeError, match="pinhole-only"):
         generate_case(tmp_path / "lens", cfg.model_copy(update={"lens": "barrel"}), layout=only)
     assert not any(tmp_path.glob(".lens*")) and not (tmp_path / "lens").exists()
+
+
+def test_a_stereo_endonerf_case_has_matched_depth_and_exact_truth_apart(tmp_path: Path) -> None:
+    """--layout endonerf --stereo: depth/ is what the matcher finds on the rendered pair (holes,
+    errors, none on the tool), as EndoNeRF's own; the exact depth stays in gt/. Run, it
+    supervises in mm and is no copy of the truth; without a right eye depth/ is the truth and
+    the run says its scores are no check."""
+    from endopipe.cli import main
+    from endopipe.commands.synth import other_layout
+    from endopipe.stages.ingest.view import IngestView
+
+    cfg = PULL.model_copy(update={"frames": 6, "width": 160, "height": 128})
+    stereo = cfg.model_copy(update={"stereo_baseline_mm": 5.0})
+    generate_case(tmp_path / "s", stereo, layout=other_layout("endonerf", 5.0))
+    generate_case(tmp_path / "x", cfg, layout=other_layout("endonerf"))
+    meta = json.loads((tmp_path / "s" / "endonerf.json").read_text())
+    assert "StereoSGBM" in meta["depth"] and meta["units"] == "mm"
+    png = cv2.imread(str(tmp_path / "s" / "depth" / "frame-000005.depth.png"), -1)
+    truth = np.load(tmp_path / "s" / "gt" / "depth" / "000005.npy")
+    tool = cv2.imread(str(tmp_path / "s" / "masks" / "frame-000005.mask.png"), -1) > 0
+    depth = png / meta["depth_scale"]
+    matched = depth > 0
+    assert 0.3 < matched.mean() < 0.98 and not (matched & tool).any()
+    err = np.abs(depth[matched] - truth[matched]) / truth[matched]
+    assert 0.002 < np.median(err) < 0.05  # a measurement: near the truth, not the truth
+    views = {}
+    for name in ("s", "x"):
+        args = ["run", str(tmp_path / name), "--workdir", str(tmp_path / "wd"), "--quiet"]
+        assert main([*args, "--until", "ingest"]) == 0
+        views[name] = IngestView(tmp_path / "wd" / name / "01_ingest")
+        assert views[name].has_stereo and views[name].file.stereo.baseline_mm is None
+    assert views["s"].truth_supervised(views["s"].ground_truth()) is None
+    assert views["x"].truth_supervised(views["x"].ground_truth()) is not None

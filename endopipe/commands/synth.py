@@ -63,7 +63,8 @@ def synth_case(
     sink = other_layout(layout, cfg.stereo_baseline_mm)
     if stereo and (sink is None or not sink.takes_right):
         raise EndopipeError(
-            f"synth --stereo: the {layout} layout has no right eye (hamlyn and scared have one)"
+            f"synth --stereo: the {layout} layout has no right eye (hamlyn, scared and endonerf "
+            "have one)"
         )
     ensure_writable(out_dir.parent if out_dir.parent != Path("") else Path("."))
     summary = write_synth(out_dir, cfg, sink)
@@ -79,18 +80,26 @@ def synth_case(
 
 
 def other_layout(layout: str, baseline_mm: float | None = None) -> Layout | None:
-    """EndoNeRF's layout, written by the export library as the frames are rendered; Hamlyn's
-    and EDaM's, by the synth library's sinks (Hamlyn's with the right eye at `baseline_mm`)."""
+    """EndoNeRF's layout, written by the export library as the frames are rendered (its depth/
+    matched from a right eye at `baseline_mm` when given); Hamlyn's and EDaM's, by the synth
+    library's sinks (Hamlyn's with the right eye at `baseline_mm`)."""
     if layout == "endopipe":
         return None
     if layout in ("hamlyn", "edam"):
         return data_set_layout(layout, baseline_mm)
     if layout in ("c3vd", "scared"):
         return lens_layout(layout, baseline_mm)
+    from functools import partial
+
     from endopipe.export.endonerf_sink import EndoNerfSink
     from endopipe.synth import Layout
 
-    return Layout("endonerf", EndoNerfSink, subfolder="endonerf" if layout == "both" else "")
+    return Layout(
+        "endonerf",
+        partial(EndoNerfSink, baseline_mm=baseline_mm),
+        subfolder="endonerf" if layout == "both" else "",
+        takes_right=baseline_mm is not None,
+    )
 
 
 def data_set_layout(layout: str, baseline_mm: float | None) -> Layout:

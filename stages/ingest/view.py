@@ -254,20 +254,52 @@ class IngestView:
         return open_ground_truth(self.gt_dir) if self.gt_dir is not None else None
 
     def truth_supervised(self, gt: GroundTruthSource | None) -> str | None:
-        """The folder when the depth that supervised the field (a depth prior, a data set's own
-        depth) is the ground truth's own maps (EndoNeRF's depth/ both): scores against it are
-        then no independent check. None otherwise."""
+        """The ground truth's depth folder when the depth that supervised the field (a depth
+        prior, a data set's own depth) is the ground truth's own maps (EndoNeRF's depth/ both)
+        or holds its values (a synthetic case's exact depth/): scores against it are then no
+        independent check. None otherwise."""
+        if gt is None or not self.frames:
+            return None
         depth_file = getattr(gt, "depth_file", None)
-        if depth_file is None or not self.frames:
+        first = depth_file(self.frames[0].source_index) if depth_file is not None else None
+        if first is not None:
+            folder = Path(first).resolve().parent
+            given = [self.file.depth_prior]
+            if self.file.stereo is not None and self.file.stereo.baseline_mm is None:
+                given.append(self.file.stereo.source.split(" (")[0])
+            if any(g and Path(g).resolve() == folder for g in given):
+                return str(folder)
+        if not self._equals_truth(gt):
             return None
-        first = depth_file(self.frames[0].source_index)
-        if first is None:
-            return None
-        folder = Path(first).resolve().parent
-        given = [self.file.depth_prior]
-        if self.file.stereo is not None and self.file.stereo.baseline_mm is None:
-            given.append(self.file.stereo.source.split(" (")[0])
-        return str(folder) if any(g and Path(g).resolve() == folder for g in given) else None
+        if first is not None:
+            return str(Path(first).resolve().parent)
+        return str(getattr(gt, "dir", None) or "the ground truth")
+
+    def _equals_truth(self, gt: GroundTruthSource, frames: int = 5) -> bool:
+        """Whether the depth that supervised (stereo/ of a data set's own depth, or the depth
+        prior up to scale) is the ground truth's values (within 0.2%) on a few frames: a
+        synthetic case whose depth/ is its exact truth."""
+        given = self.file.stereo is not None and self.file.stereo.baseline_mm is None
+        if not given and not self.has_depth_prior:
+            return False
+        checked = 0
+        for f in self.frames[:: max(1, len(self.frames) // frames)][:frames]:
+            ours = self.stereo_depth(f.index) if given else self.depth_prior(f.index)
+            truth = gt.depth(f.source_index) if ours is not None else None
+            if ours is None or truth is None:
+                continue
+            if truth.shape != ours.shape:
+                truth = cv2.resize(truth, ours.shape[::-1], interpolation=cv2.INTER_NEAREST)
+            both = (ours > 0) & (truth > 0)
+            if both.sum() < 100:
+                continue
+            ratio = ours[both] / truth[both]
+            if not given:  # a prior is relative: up to its scale
+                ratio = ratio / np.median(ratio)
+            if np.median(np.abs(ratio - 1.0)) > 0.002:
+                return False
+            checked += 1
+        return checked > 0
 
     def ground_truth_for_scores(self, log: Callable[[str], None]) -> GroundTruthSource | None:
         """The ground truth where it only scores a stage's output: one that can no longer be
