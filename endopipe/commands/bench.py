@@ -135,6 +135,16 @@ def plan(
 
 
 COLON = {"shape": "colon", "frames": 60, "width": 320, "height": 256, "seed": 7}
+#: a still camera on the cavity's wall pulled by a tool in view
+PULL_STILL = {
+    "shape": "cavity",
+    "frames": 120,
+    "width": 320,
+    "height": 256,
+    "seed": 7,
+    "deform": "pull",
+    "still_camera": True,
+}
 DEFAULT_CASES = ("colon", "cavity")
 SWEEP_SIZE = {"frames": 60, "width": 320, "height": 256}
 
@@ -194,16 +204,10 @@ def _plan(quick: bool) -> BenchPlan:
             # camera on the cavity's wall pulled by a tool in view (run as a user would: the
             # poses stage finds the camera still and poses it once)
             BenchCase(**COLON, name="colon_breathe", deform="breathe"),
-            BenchCase(
-                name="pull_still",
-                shape="cavity",
-                frames=120,
-                width=320,
-                height=256,
-                seed=7,
-                deform="pull",
-                still_camera=True,
-            ),
+            BenchCase(**PULL_STILL, name="pull_still"),
+            # the same in EndoNeRF's layout, its depth/ matched from a right eye as EndoNeRF's
+            # own: the depth the data set ships supervises, in mm
+            BenchCase(**PULL_STILL, name="pull_still_endonerf", layout="endonerf", stereo=True),
             # a rectified Hamlyn sequence with both eyes, read as the data set ships (no GT
             # poses used: the stereo gives the scale), moving and still
             BenchCase(**COLON, name="hamlyn_stereo", layout="hamlyn", stereo=True),
