@@ -437,6 +437,9 @@ def case_run(synth_case: Path, tmp_path_factory: pytest.TempPathFactory) -> Path
     return run_until_nerf(synth_case, tmp_path_factory.mktemp("wd"))
 
 
+# 2 min for both (a colon run to the NeRF three times): the readers' round trips above and
+# test_c3vd_layout's run keep the data sets in the default suite
+@pytest.mark.slow
 @pytest.mark.parametrize("layout", ["c3vd", "simcol3d"])
 def test_data_set_sequences_are_aligned_and_evaluated_like_case_folders(
     synth_case: Path, case_run: Path, tmp_path: Path, layout: str

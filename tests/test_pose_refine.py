@@ -157,6 +157,7 @@ def _perturbed(poses: list[np.ndarray], frames: list[int], deg: float, pct: floa
     return out
 
 
+@pytest.mark.slow  # 26 s for a known shortfall: run with -m slow when working on refinement
 @pytest.mark.xfail(
     strict=True,
     reason="not reached yet on the tube scene: perturbed frames stay near 1 deg / 2 %, and the "

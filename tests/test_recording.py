@@ -129,6 +129,7 @@ def _trajectory(case: Path) -> dict[int, np.ndarray]:
     return {f.source_index: np.array(f.c2w) for f in RecordingView(case).trajectory().frames}
 
 
+@pytest.mark.slow  # 56 s; the short recording keeps windows in the default suite
 def test_a_withdrawal_through_windows_matches_the_truth_and_one_window(
     withdrawal: Path, tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
@@ -347,6 +348,7 @@ def _as_hamlyn_edm(case: Path, seq: Path) -> Path:
     return seq
 
 
+@pytest.mark.slow  # 60 s; batch of a recording: test_batch and the short recording cover its parts
 def test_batch_takes_a_long_hamlyn_sequence_through_windows(
     withdrawal: Path, tmp_path: Path
 ) -> None:
