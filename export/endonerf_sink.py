@@ -63,8 +63,7 @@ class EndoNerfSink:
         if self.baseline is not None:
             if right is None:
                 raise ValueError("a stereo EndoNeRF case needs every frame's right eye")
-            usable = np.where(excluded, 0, 255).astype(np.uint8)
-            depth = match_depth(rgb, right, self.camera.fx, self.baseline, StereoConfig(), usable)
+            depth = match_depth(rgb, right, self.camera.fx, self.baseline, StereoConfig())
         self.depths.append(depth.astype(np.float32))
 
     def finish(self, poses: np.ndarray) -> None:

@@ -41,7 +41,7 @@ class Ingest(Stage):
 
     name = "ingest"
     needs = ()
-    version = 7  # 7: a data set's metric depth in stereo/, none on tools; 6: depth prior
+    version = 7  # 7: a data set's metric depth in stereo/; 6: the user's depth prior
     Config = IngestConfig
     Summary = IngestSummary
     View = IngestView
@@ -77,15 +77,15 @@ class Ingest(Stage):
                 name = f"{i:06d}.png"
                 cv2.imwrite(str(ctx.out / "frames" / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
                 usable = combine(fov, spec)
-                tool = tools.of(frame.source_index, rgb, fov, size)
-                if tool is not None:  # a tool moves on its own: no depth of it supervises
-                    usable[tool] = 0
-                    tool_fracs.append(float(tool.mean()))
-                    cv2.imwrite(str(ctx.out / "tools" / name), tool.astype(np.uint8) * 255)
                 depth = stereo.of(frame.source_index, rgb, usable) if stereo.active else None
                 relative = prior.of(frame.source_index, size, fov) if prior.active else None
                 prior_frames += relative is not None
                 stereo_shares.append(None if depth is None else stereo.share(depth, fov))
+                tool = tools.of(frame.source_index, rgb, fov, size)
+                if tool is not None:
+                    usable[tool] = 0
+                    tool_fracs.append(float(tool.mean()))
+                    cv2.imwrite(str(ctx.out / "tools" / name), tool.astype(np.uint8) * 255)
                 cv2.imwrite(str(ctx.out / "masks" / name), usable)
                 entries.append(
                     FrameEntry(
