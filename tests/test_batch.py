@@ -129,6 +129,7 @@ def test_config_change_reruns_only_what_changed(batch_folder: Path, tmp_path: Pa
     assert row["stages_ran"] == "ingest" and float(row["ingest.kept"]) == 5
 
 
+@pytest.mark.slow  # 9 s; an optional executor (the local one is the default)
 def test_slurm_executor_through_submitit_local(batch_folder: Path, tmp_path: Path) -> None:
     pytest.importorskip("submitit")
     wd = tmp_path / "wd"
@@ -174,6 +175,7 @@ def test_slurm_job_array_script_from_the_cluster_config(
         assert line in script, line
 
 
+@pytest.mark.slow  # 11 s; an optional executor (the local one is the default)
 def test_ray_executor_on_a_local_ray_cluster(batch_folder: Path, tmp_path: Path) -> None:
     pytest.importorskip("ray")
     wd = tmp_path / "wd"

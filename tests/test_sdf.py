@@ -53,6 +53,7 @@ def test_the_signed_distance_starts_on_the_prior_wall(tmp_path):
     assert _scene_distance(tr.model, box, axis).min() > 0.9 * RADIUS
 
 
+@pytest.mark.slow  # 13 s; the SDF geometry is an option, not the default
 def test_signed_distance_training_beats_the_density_field_on_the_tube(tmp_path):
     cfg = tiny_config(steps=200)
     cfg.field.geometry = "sdf"
