@@ -147,3 +147,23 @@ def test_stereo_off_leaves_a_stereo_input_monocular(stereo_seq: Path, tmp_path: 
     assert ingest(stereo_seq, tmp_path, "ingest.stereo.mode=off", "ingest.max_size=96") == 0
     view = IngestView(tmp_path / "rectified01" / "01_ingest")
     assert view.stereo_depth(view.indices[0]) is None and view.summary.stereo is None
+
+
+def test_the_spread_term_is_zero_only_for_weight_at_the_measured_depth() -> None:
+    """nerf.loss.stereo_spread: a ray whose weight sits at its measured depth costs nothing; a
+    haze that averages to the same depth costs, and its gradient moves weight to the depth."""
+    import torch
+
+    from endopipe.stages.nerf.losses import depth_spread
+
+    t = torch.linspace(5.0, 15.0, 11)[None]
+    target = torch.tensor([10.0])
+    sharp = torch.zeros(1, 11)
+    sharp[0, 5] = 1.0  # all at t = 10
+    assert float(depth_spread(t, sharp, target)) == 0.0
+    haze = torch.full((1, 11), 1.0 / 11, requires_grad=True)  # expected depth 10 too
+    cost = depth_spread(t, haze, target)
+    assert float(cost) > 0.05
+    cost.backward()
+    grad = haze.grad[0]
+    assert grad[5] == grad.min() and grad[0] > grad[3] > grad[5]  # cheapest at the depth

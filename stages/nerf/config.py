@@ -421,6 +421,15 @@ class LossConfig(_Section):
         "gives a still camera depth and every frame its metric scale (0: off).",
     )
     stereo_rays: int = Field(512, ge=1, description="Stereo-depth rays per step.")
+    stereo_spread: float = Field(
+        0.0,
+        ge=0,
+        description="On the stereo rays, the weight of each ray's density spread about the "
+        "measured depth (the sum of its render weights times the squared relative distance "
+        "from it, as DS-NeRF's depth loss): a surface at the depth, not a haze averaging to "
+        "it. Off by default: at 1 a still stereo camera's field met the rig where it matched, "
+        "and a moving one's depth came out worse (docs/experiments.md) (0: off).",
+    )
     stereo_per_frame: int = Field(
         4096, ge=1, description="Matched pixels drawn once per training frame (a fixed draw)."
     )

@@ -103,6 +103,13 @@ def sparse_depth(
     return (huber * keep).sum() / keep.sum().clamp_min(1.0)
 
 
+def depth_spread(t: torch.Tensor, weights: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Each ray's render weights (B, S) at depths t times their squared relative distance from
+    its measured depth, averaged over the rays: zero only when the ray's weight sits at it."""
+    rel = (t - target[:, None]) / target[:, None].clamp_min(1e-6)
+    return (weights * rel.square().clamp_max(1.0)).sum(1).mean()
+
+
 def distortion(t: torch.Tensor, weights: torch.Tensor, far: torch.Tensor) -> torch.Tensor:
     """Mip-NeRF 360's distortion loss on (B, S) sorted samples: small when each ray's weight
     sits in one compact interval. Without it the field fills the space in front of the wall

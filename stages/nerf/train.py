@@ -307,9 +307,12 @@ class Trainer:
             loss = loss + lc.sparse_weight * terms["sparse"]
         if lc.stereo_weight > 0 and self.stereo is not None:
             frame, u, v, z = self.stereo.sample(lc.stereo_rays, self.gen)
-            depth = self._depth(*self.frames.rays(frame, u, v), frame)
-            terms["stereo"] = losses.sparse_depth(depth, z)
+            rendered = self._render(*self.frames.rays(frame, u, v), frame)
+            terms["stereo"] = losses.sparse_depth(rendered["depth"], z)
             loss = loss + lc.stereo_weight * terms["stereo"]
+            if lc.stereo_spread > 0:
+                terms["stereo_spread"] = losses.depth_spread(rendered["t"], rendered["weights"], z)
+                loss = loss + lc.stereo_spread * terms["stereo_spread"]
         if lc.depth_prior_weight > 0 and self.prior_depth is not None:
             n, r = lc.depth_prior_frames, lc.depth_prior_rays
             frame, u, v, p = self.prior_depth.sample(n, r, self.gen)
@@ -373,11 +376,16 @@ class Trainer:
     ) -> torch.Tensor:
         """Rendered depth of extra rays (density only, jittered, with gradients), at their
         frames' time (a dynamic field)."""
+        return self._render(o, d, frame)["depth"]
+
+    def _render(
+        self, o: torch.Tensor, d: torch.Tensor, frame: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
+        """`_depth`'s render, with its samples' depths and weights."""
         near, far, _ = self.pb.bounds(o, d, self.pb.margin)
-        out = self.model.render_rays(
+        return self.model.render_rays(
             o, d, near, far, frame=frame, jitter=True, gen=self.gen, colour=False, normals=False
         )
-        return out["depth"]
 
     def _geo_term(self, b, o, d, depth) -> torch.Tensor:
         """Warp frame t's rendered depth into its neighbour and compare with the depth rendered
