@@ -340,10 +340,10 @@ def from_known(ingest: IngestView) -> Estimate:
 def known_agreement(est: Estimate, ingest: IngestView, source: str) -> KnownPosesCheck | None:
     """The poses kept beside the input's own (None when it has none, or they are the ones
     kept)."""
-    known = ingest.known_poses()
-    if not known or source == "known" or ingest.file.known_poses is None:
+    known = ingest.file.known_poses
+    if known is None or source == "known":
         return None
-    return compare_known(est.c2w, known, ingest.file.known_poses.source)
+    return compare_known(est.c2w, ingest.known_poses() or {}, known.source)
 
 
 def compare_known(

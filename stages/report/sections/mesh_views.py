@@ -69,8 +69,8 @@ def mesh_views(data: CaseData, info: ReportInfo) -> MeshViews:
             info.mesh_viewer = "three.js (inlined from trimesh)"
         except Exception as e:  # noqa: BLE001 - fall back to the static views
             shown.viewer_problem = f"interactive viewer: {one_line(e)}; static views below instead"
+    axes = principal_axes(v)
     if cfg.mesh_views:
-        axes = principal_axes(v)
         defs = [
             ("side", axes[0], axes[1]),
             ("top", axes[0], axes[2]),
@@ -79,7 +79,7 @@ def mesh_views(data: CaseData, info: ReportInfo) -> MeshViews:
         for label, right, up in defs:
             img = render_mesh_view(v, f, c, right, up)
             shown.views.append(Figure(image_uri(img, "jpg", cfg.jpeg_quality), label))
-    time_views(data, shown, principal_axes(v))
+    time_views(data, shown, axes)
     return shown
 
 
