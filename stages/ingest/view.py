@@ -262,13 +262,9 @@ class IngestView:
             return None
         depth_file = getattr(gt, "depth_file", None)
         first = depth_file(self.frames[0].source_index) if depth_file is not None else None
-        if first is not None:
-            folder = Path(first).resolve().parent
-            given = [self.file.depth_prior]
-            if self.file.stereo is not None and self.file.stereo.baseline_mm is None:
-                given.append(self.file.stereo.source.split(" (")[0])
-            if any(g and Path(g).resolve() == folder for g in given):
-                return str(folder)
+        prior = self.file.depth_prior
+        if first is not None and prior and Path(prior).resolve() == Path(first).resolve().parent:
+            return str(Path(first).resolve().parent)
         if not self._equals_truth(gt):
             return None
         if first is not None:

@@ -30,11 +30,12 @@ def stereo_line(ing: IngestSummary | None) -> str | None:
     shares = [c for c in ing.stereo_coverage if c is not None]
     if not shares:
         return f"{ing.stereo}: no frame had a right view"
+    rig = bool(ing.stereo_baseline_mm)  # else the data set's own metric depth maps
     line = (
         f"{len(matched)} of {len(ing.stereo_coverage)} kept frames (positions "
-        f"{ranges(matched)}) matched, covering {min(shares):.0%}-{max(shares):.0%} of the "
-        f"view (mean {sum(shares) / len(shares):.0%})"
+        f"{ranges(matched)}) {'matched' if rig else 'with depth'}, covering "
+        f"{min(shares):.0%}-{max(shares):.0%} of the view (mean {sum(shares) / len(shares):.0%})"
     )
-    if not ing.stereo_baseline_mm:  # no rig: the data set's own metric depth
-        return f"{line.replace(' matched,', ' with depth,')}; depth maps from {ing.stereo}"
+    if not rig:
+        return f"{line}; depth maps from {ing.stereo}"
     return f"{line}; right views from {ing.stereo}, baseline {ing.stereo_baseline_mm:.2f} mm"
