@@ -503,6 +503,24 @@ def batch(
         ),
     ] = "auto",
     until: Annotated[str | None, typer.Option(help="Stop each case after this stage.")] = None,
+    right: Annotated[
+        Path | None,
+        typer.Option(
+            help="Folder holding one folder per case (named as the case, or its path under "
+            "FOLDER) of the rectified right eye's frames; needs --baseline-mm. Hamlyn's "
+            "image02/ is found without it."
+        ),
+    ] = None,
+    baseline_mm: Annotated[
+        float | None, typer.Option(help="Distance between the two eyes of --right's rig, mm.")
+    ] = None,
+    depth_prior: Annotated[
+        Path | None,
+        typer.Option(
+            help="Folder holding one folder per case (named as the case, or its path under "
+            "FOLDER) of depth maps made elsewhere: a relative prior, scored beside ours."
+        ),
+    ] = None,
     dry_run: Annotated[bool, typer.Option(help="List the cases and readers only.")] = False,
     *,
     recording: RecordingOptions,
@@ -529,6 +547,9 @@ def batch(
         until=until,
         long_case=partial(recording_row, pipe, batch_case, recording, execution, console),
         dry_run=dry_run,
+        right=right,
+        baseline_mm=baseline_mm,
+        depth_prior=depth_prior,
         console=console,
         out=out,
     )

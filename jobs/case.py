@@ -11,7 +11,7 @@ import time
 import traceback
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from endopipe.jobs.rows import CaseRow, CaseTask, numeric_leaves
 from endopipe.pipeline.cache import Manifest
@@ -20,8 +20,22 @@ from endopipe.pipeline.executors import limit_threads
 from endopipe.pipeline.runner import Pipeline, RunRecord, read_runs
 from endopipe.pipeline.stage import CaseInfo
 
+if TYPE_CHECKING:
+    from endopipe.stages.io.added import AddedInputs
+
 #: prepare_case(input, workdir, name, intrinsics, input_format, added) -> the case folder.
 PrepareCase = Callable[[Path, Path, str | None, Path | None, str | None, Any], Path]
+
+
+def task_added(task: CaseTask) -> AddedInputs:
+    """The right eye and depth prior a task carries, as the input opens them."""
+    from endopipe.stages.io.added import AddedInputs
+
+    return AddedInputs(
+        right=Path(task.right) if task.right else None,
+        baseline_mm=task.baseline_mm,
+        depth_prior=Path(task.depth_prior) if task.depth_prior else None,
+    )
 
 
 def process_case(
@@ -34,7 +48,6 @@ def process_case(
     fresh (status "ok"), the input cannot be used ("failed"), or something would run
     ("pending").
     """
-    from endopipe.stages.io.added import AddedInputs
     from endopipe.stages.io.sources import open_input
 
     if task.threads:
@@ -43,11 +56,7 @@ def process_case(
     row = CaseRow(case=task.name, status="failed", reader=task.reader, input=task.input)
     workdir, path = Path(task.workdir), Path(task.input)
     intrinsics = Path(task.intrinsics) if task.intrinsics else None
-    added = AddedInputs(
-        right=Path(task.right) if task.right else None,
-        baseline_mm=task.baseline_mm,
-        depth_prior=Path(task.depth_prior) if task.depth_prior else None,
-    )
+    added = task_added(task)
     case_dir = workdir / task.name
     try:
         pipe = build_pipeline()  # imports the stages: not counted in the case's wall time

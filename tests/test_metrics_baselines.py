@@ -51,6 +51,7 @@ class Frames:
 
     images: dict[int, np.ndarray]
     inside: np.ndarray
+    tool: np.ndarray | None = None  # every frame's tool mask
     height: int = H
     width: int = W
 
@@ -60,10 +61,19 @@ class Frames:
     def image(self, i: int) -> np.ndarray:
         return self.images[i]
 
+    def tool_mask(self, i: int) -> np.ndarray | None:
+        return self.tool
 
-def scored(ours: np.ndarray, gt: np.ndarray, image: np.ndarray, kind: str = "exact") -> dict:
+
+def scored(
+    ours: np.ndarray,
+    gt: np.ndarray,
+    image: np.ndarray,
+    kind: str = "exact",
+    tool: np.ndarray | None = None,
+) -> dict:
     """metrics.json of the depth stage for a one-frame sequence (through `evaluate`)."""
-    frames = Frames({0: image}, disc())
+    frames = Frames({0: image}, disc(), tool)
     truth = SimpleNamespace(kind=kind)
     return evaluate(truth, frames, {0: ours}, {0: gt}, {}, principal=(CX, CY))
 
@@ -82,6 +92,25 @@ def test_a_perfect_depth_covers_everything_and_beats_both_guesses() -> None:
         assert set(guess["median_scaled"]) == set(m["median_scaled"])  # the same keys as ours
         assert guess["median_scaled"]["abs_rel"] > 0.05
         assert guess["median_scaled"]["delta1"] < m["median_scaled"]["delta1"]
+
+
+def test_a_tool_is_left_out_of_every_score_and_its_share_said() -> None:
+    """On a tool the truth is the tool (near), ours the tissue under it: scored there, ours
+    would be far off; left out, ours and the guesses are scored on the tissue alone."""
+    tissue = slanted_wall()
+    tool = np.zeros((H, W), bool)
+    tool[20:40, 30:60] = True
+    truth = np.where(tool, 8.0, tissue).astype(np.float32)  # the tool, nearer than the wall
+    texture = np.random.default_rng(0).integers(0, 256, (H, W, 3), dtype=np.uint8)
+    m = scored(tissue.copy(), truth, texture, tool=tool)
+    assert m["median_scaled"]["abs_rel"] < 1e-6  # ours is right wherever tissue is seen
+    assert m["tool_share_left_out"] == (tool & disc()).sum() / disc().sum()
+    untouched = scored(tissue.copy(), tissue, texture, tool=tool)["baselines"]
+    for name in ("radial", "brightness"):  # the guesses on the same tissue pixels
+        assert m["baselines"][name]["median_scaled"] == untouched[name]["median_scaled"]
+    on_tool = scored(tissue.copy(), truth, texture)  # no tool masks: the tool is scored
+    assert on_tool["tool_share_left_out"] is None
+    assert on_tool["median_scaled"]["abs_rel"] > 0.2
 
 
 def test_holes_lower_coverage_and_the_rest_is_scored_alone() -> None:

@@ -322,7 +322,7 @@ def test_the_fields_prior_rays_are_drawn_frame_by_frame(seq: Path, tmp_path: Pat
     view = IngestView(tmp_path / "rectified01" / "01_ingest")
     positions = {i: p for p, i in enumerate(view.indices[:3])}
     usable = {i: view.mask(i) > 127 for i in positions}
-    rays = prior_depth_targets(view, positions, usable, 500, 128, torch.device("cpu"))
+    rays = prior_depth_targets(view.depth_prior, positions, usable, 500, 128, torch.device("cpu"))
     assert rays is not None and rays.frame == [0, 1, 2] and len(rays) == 1500
     frame, u, v, p = rays.sample(4, 32, torch.Generator().manual_seed(0))
     assert frame.shape == (128,) and (frame.view(4, 32) == frame.view(4, 32)[:, :1]).all()
@@ -330,3 +330,44 @@ def test_the_fields_prior_rays_are_drawn_frame_by_frame(seq: Path, tmp_path: Pat
         i = view.indices[f]
         assert view.depth_prior(i)[int(vv), int(uu)] == pytest.approx(pp)
     assert not view.has_stereo or view.stereo_depth(0) is not None
+
+
+# ------------------------------------------------------------------ batch: a folder per case
+def test_batch_gives_each_case_its_own_prior_and_refuses_a_root_with_none(
+    seq: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`batch --depth-prior PRIORS`: PRIORS/<case>/ goes with that case only (here two
+    sequences, the second's maps 3x the first's), a case without one runs without and is
+    named, and a PRIORS with no folder for any case is refused in one line, running nothing."""
+    data, priors = tmp_path / "hamlyn", tmp_path / "priors"
+    for name, scale in (("rectified01", 1.0), ("rectified02", 3.0)):
+        shutil.copytree(seq, data / name)
+        (priors / name).mkdir(parents=True)
+        for f in sorted((seq.parent / "prior").iterdir()):
+            np.save(priors / name / f.name, np.load(f) * scale)
+    shutil.copytree(seq, data / "rectified03")  # no prior of its own
+    wd = tmp_path / "runs"
+    args = ["batch", str(data), "--workdir", str(wd), "--until", "ingest", "--jobs", "1"]
+    assert main([*args, "--depth-prior", str(priors)]) == 0
+    err = " ".join(capsys.readouterr().err.split())
+    assert "--depth-prior: no folder for rectified03" in err, err
+    first, second, third = (
+        IngestView(wd / n / "01_ingest") for n in ("rectified01", "rectified02", "rectified03")
+    )
+    assert first.file.depth_prior == str((priors / "rectified01").resolve())
+    assert second.file.depth_prior == str((priors / "rectified02").resolve())
+    assert not third.has_depth_prior
+    ratio = (
+        second.depth_prior(0)[first.depth_prior(0) > 0]
+        / first.depth_prior(0)[first.depth_prior(0) > 0]
+    )
+    np.testing.assert_allclose(ratio, 3.0, rtol=1e-5)
+
+    wrong = tmp_path / "elsewhere"
+    (wrong / "other").mkdir(parents=True)
+    one_line_refusal(
+        capsys,
+        main([*args, "--workdir", str(tmp_path / "runs2"), "--depth-prior", str(wrong)]),
+        "holds no folder named after a case",
+    )
+    assert not (tmp_path / "runs2" / "rectified01").exists()

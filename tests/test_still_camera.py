@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 
 from endopipe.cli import main
+from endopipe.stages.depth import evaluate
 from endopipe.stages.depth.view import DepthView
 from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.mesh.view import MeshView
+from endopipe.stages.metrics.depth import depth_frame_metrics
 from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
 from endopipe.synth import SynthConfig, generate_case
@@ -67,6 +69,25 @@ def test_its_field_changes_with_time_and_its_depth_is_one_viewpoints(still_case:
     guess = m.baselines["brightness"].median_scaled.abs_rel
     assert ours < 0.8 * guess, (ours, guess)  # measured 0.082 against 0.119
     assert m.neighbour_average and m.neighbour_average["psnr"] > 0
+
+
+def test_its_depth_is_scored_on_tissue_not_on_the_tool(still_case: Path):
+    """On a tool the truth is the tool and ours the tissue under it: the scores leave tools
+    out and say how much; a frame's score recomputed off its tool matches, on it it does not."""
+    ingest, depth = IngestView(still_case / "01_ingest"), DepthView(still_case / "05_depth")
+    m = depth.metrics
+    assert m is not None and m.per_frame is not None
+    assert m.tool_share_left_out == pytest.approx(ingest.summary.mean_tool_fraction, abs=0.02)
+    i = ingest.frames[-1].index
+    row = next(r for r in m.per_frame if r["index"] == i)["median_scaled"]
+    truth = evaluate.ground_truth_depths(ingest.ground_truth(), ingest, [i])[i]
+    tool = ingest.tool_mask(i)
+    assert tool is not None and tool.mean() > 0.05
+    inside = evaluate.inside_view(ingest)
+    off = depth_frame_metrics(depth.depth(i), truth, inside & ~tool)
+    on = depth_frame_metrics(depth.depth(i), truth, inside)
+    assert row["abs_rel"] == pytest.approx(off["abs_rel"], rel=1e-5)
+    assert on["abs_rel"] > 2 * off["abs_rel"]  # the tool, nearer than the tissue under it
 
 
 def test_its_surface_is_meshed_at_several_times_and_shown_moving(still_case: Path):

@@ -18,6 +18,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from endopipe.commands.cases import prepare_case
+from endopipe.jobs.case import task_added
 from endopipe.jobs.driver import run_cases
 from endopipe.jobs.options import Execution
 from endopipe.jobs.rows import CaseRow, CaseTask, numeric_leaves
@@ -146,7 +147,8 @@ def recording_row(
     row = CaseRow(case=task.name, status="failed", reader=task.reader, input=task.input)
     workdir = Path(task.workdir)
     try:
-        case_dir = prepare_case(Path(task.input), workdir, task.name, None, task.reader)
+        added = task_added(task)
+        case_dir = prepare_case(Path(task.input), workdir, task.name, None, task.reader, added)
         pipe.run(case_dir, configs, until="ingest", quiet=True, console=console)
         if not is_recording(pipe, case_dir, options):
             return None

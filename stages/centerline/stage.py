@@ -62,7 +62,9 @@ class Centerline(Stage):
         if len(centres) == 0:
             raise StageFailed("centerline: no registered cameras in 02_poses")
         if poses.still:
-            return no_parallax(ctx, centres, stereo_typical_depth(ctx.input(IngestView), poses))
+            ingest = ctx.input(IngestView)
+            typical = stereo_typical_depth(ingest, poses)
+            return no_parallax(ctx, centres, typical, ingest.stereo_measured_by)
         view_dirs = np.array([poses.c2w[i][:3, 2] for i in poses.registered]).reshape(-1, 3)
         points = poses.points()
         units = poses.file.units
@@ -200,7 +202,10 @@ def stereo_typical_depth(ingest: IngestView, poses: PosesView) -> float | None:
 
 
 def no_parallax(
-    ctx: StageContext[CenterlineConfig], centres: np.ndarray, stereo_depth: float | None
+    ctx: StageContext[CenterlineConfig],
+    centres: np.ndarray,
+    stereo_depth: float | None,
+    measured_by: str = "the stereo rig",
 ):
     """A still camera saw nothing from two places: no points, no shape to fit. No prior; the
     scene's unit is the stereo depth's typical distance in mm when a rig measured it, else
@@ -212,8 +217,8 @@ def no_parallax(
     prior = FreePrior(centres.mean(0), scale, STILL_REACH * typical, typical)
     if stereo_depth is not None:
         reason = (
-            "none: the camera stands still, so no parallax places any point; the stereo rig "
-            f"measured the typical distance, {typical:.1f} mm"
+            "none: the camera stands still, so no parallax places any point; "
+            f"{measured_by} measured the typical distance, {typical:.1f} mm"
         )
     else:
         reason = (

@@ -9,6 +9,7 @@ from functools import partial
 import cv2
 import numpy as np
 
+from endopipe.stages.camera import Camera, image_directions
 from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.io.ground_truth import GroundTruthSource, depth_of_frame
 from endopipe.stages.metrics.baselines import (
@@ -22,9 +23,12 @@ from endopipe.stages.metrics.depth import (
     depth_sequence_metrics,
     image_metrics,
 )
+from endopipe.stages.nerf.shading_depth import shading_depth
 
 #: The baseline name of the user's depth prior (`--depth-prior`) in `baselines`.
 PRIOR = "depth_prior"
+#: ... and a still camera's depth from shading (nerf.shading_depth), relative too
+SHADING = "shading"
 
 
 def ground_truth_depths(
@@ -68,6 +72,24 @@ def inside_view(ingest: IngestView) -> np.ndarray:
     return fov > 0 if fov is not None else np.ones((ingest.height, ingest.width), bool)
 
 
+def scored_pixels(ingest: IngestView, i: int, inside: np.ndarray) -> np.ndarray:
+    """The pixels of frame i whose depth is scored: inside the field of view and off a tool.
+    On a tool the truth is the tool's surface, while ours is the tissue the field infers under
+    it (docs/formats.md): scored there, a tool would count as our error. The deformable
+    family's evaluations (EndoNeRF, Deform3DGS) leave tools out alike."""
+    tool = ingest.tool_mask(i)
+    return inside if tool is None else inside & ~tool
+
+
+def tool_share_left_out(ingest: IngestView, ids: list[int], inside: np.ndarray) -> float | None:
+    """The share of the scored frames' field of view left out of the depth scores for being
+    on a tool; None when ingest has no tool masks."""
+    tools = [t for i in ids if (t := ingest.tool_mask(i)) is not None]
+    if not tools:
+        return None
+    return float(np.mean([(t & inside).sum() / max(int(inside.sum()), 1) for t in tools]))
+
+
 def evaluate(
     gt: GroundTruthSource | None,
     ingest: IngestView,
@@ -78,16 +100,18 @@ def evaluate(
     metric: bool = False,
     stereo: dict[int, np.ndarray] | None = None,
     prior: dict[int, np.ndarray] | None = None,
+    shading: dict[int, np.ndarray] | None = None,
 ) -> dict:
     """Both depth protocols per frame and mean; PSNR / SSIM on held-out frames.
     `baselines` holds the same protocol blocks (means, no per-frame list) for the radial and
     brightness guesses, scored on exactly our pixels: where the ground truth is valid, inside
-    the field of view and ours has a depth, so a hole in ours is no easy pixel dropped for us
-    alone (their coverage is therefore ours). `principal` is the camera's (cx, cy) on the
-    working grid (the image centre when None). `metric` poses add the unscaled block; a stereo
-    rig's depth maps (`stereo`, by frame) are scored beside ours as a guess is, and so is the
-    user's depth prior (`prior`, by frame; relative: no unscaled block). The dict is
-    metrics.json's content, which the stage writes as `DepthMetrics`."""
+    the field of view, off a tool (`scored_pixels`) and ours has a depth, so a hole in ours is
+    no easy pixel dropped for us alone (their coverage is therefore ours). `principal` is the
+    camera's (cx, cy) on the working grid (the image centre when None). `metric` poses add the
+    unscaled block; a stereo rig's depth maps (`stereo`, by frame) are scored beside ours as a
+    guess is, and so are the user's depth prior (`prior`, by frame) and a still camera's depth
+    from shading (`shading`), both relative: no unscaled block. The dict is metrics.json's
+    content, which the stage writes as `DepthMetrics`."""
     metrics: dict = {}
     if gt_depths:
         inside = inside_view(ingest)
@@ -96,20 +120,19 @@ def evaluate(
         sequence = protocol(gt)
         ours = [depths[i] for i in ids]
         truth = [gt_depths[i] for i in ids]
-        masks = [inside] * len(ids)
+        masks = [scored_pixels(ingest, i, inside) for i in ids]
         if sequence is depth_sequence_metrics and metric:
             sequence = partial(depth_sequence_metrics, unscaled=True)
         metrics.update(sequence(ours, truth, masks, ids))
         metrics["gt_kind"] = kind
+        metrics["tool_share_left_out"] = tool_share_left_out(ingest, ids, inside)
         centre = principal or ((ingest.width - 1) / 2, (ingest.height - 1) / 2)
         metrics["baselines"] = {}
         maps_of = guesses(ingest, ids, inside, centre)
-        if stereo:
-            empty = np.zeros((ingest.height, ingest.width), np.float32)
-            maps_of["stereo"] = [stereo.get(i, empty) for i in ids]
-        if prior:
-            empty = np.zeros((ingest.height, ingest.width), np.float32)
-            maps_of[PRIOR] = [prior.get(i, empty) for i in ids]
+        empty = np.zeros((ingest.height, ingest.width), np.float32)
+        for name, given in (("stereo", stereo), (PRIOR, prior), (SHADING, shading)):
+            if given:
+                maps_of[name] = [given.get(i, empty) for i in ids]
         for name, maps in maps_of.items():
             same_pixels = [
                 np.where((d > 0) & np.isfinite(d), g, 0).astype(np.float32)
@@ -117,7 +140,7 @@ def evaluate(
             ]
             scored = sequence(same_pixels, truth, masks, ids)
             scored.pop("per_frame")
-            if name == PRIOR:  # relative: its own units mean nothing
+            if name in (PRIOR, SHADING):  # relative: its own units mean nothing
                 scored.pop("unscaled", None)
             metrics["baselines"][name] = scored
     if rgbs:
@@ -170,11 +193,12 @@ def scores_by_support(
     block = "affine_invariant" if sequence is affine_sequence_metrics else "median_scaled"
     truth = [gt_depths[i] for i in ids]
     inside = inside_view(ingest)
+    masks = [scored_pixels(ingest, i, inside) for i in ids]
     out = {}
     for name, keep in (("seen_again", True), ("rest", False)):
         ours = [np.where(seen_again[i] == keep, depths[i], 0.0).astype(np.float32) for i in ids]
         if any((d > 0).any() for d in ours):
-            out[name] = sequence(ours, truth, [inside] * len(ids), ids)[block]
+            out[name] = sequence(ours, truth, masks, ids)[block]
     return out
 
 
@@ -183,6 +207,15 @@ def prior_maps(ingest: IngestView, ids: list[int]) -> dict[int, np.ndarray]:
     if not ingest.has_depth_prior:
         return {}
     return {i: d for i in ids if (d := ingest.depth_prior(i)) is not None}
+
+
+def shading_maps(
+    ingest: IngestView, camera: Camera, ids: list[int], gamma: float
+) -> dict[int, np.ndarray]:
+    """Each frame's depth from shading (nerf.shading_depth) for a still camera with nothing
+    else to place depth: scored beside ours, a guess from the light alone that ours must beat."""
+    directions = image_directions(camera)
+    return {i: shading_depth(ingest.image(i), ingest.mask(i) > 127, directions, gamma) for i in ids}
 
 
 def stereo_maps(ingest: IngestView, ids: list[int]) -> dict[int, np.ndarray]:

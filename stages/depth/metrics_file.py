@@ -25,6 +25,9 @@ class DepthMetrics(MetricsFile):
     #: affine-invariant scores flat
     per_frame: list[dict] | None = None
     gt_kind: str | None = None  # "exact" | "pseudo" | "relative"
+    #: the share of the field of view on a tool, left out of every depth score (the truth
+    #: there is the tool, ours the tissue under it); None: no tool masks
+    tool_share_left_out: float | None = None
     #: The radial and brightness guesses (stages.metrics.baselines), scored with the same
     #: protocol blocks on the same pixels as ours: {"radial": {"median_scaled": {...}, ...}}.
     baselines: dict[str, ProtocolScores] | None = None

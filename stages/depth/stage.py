@@ -23,6 +23,7 @@ from endopipe.stages.depth.evaluate import (
     ground_truth_depths,
     prior_maps,
     scores_by_support,
+    shading_maps,
     stereo_maps,
 )
 from endopipe.stages.depth.metrics_file import DepthMetrics
@@ -45,7 +46,9 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    version = 12  # 12: says when the truth also supervised; 11: the depth prior scored; 10: stereo
+    # 13: tools left out of the scores, depth from shading scored; 12: says when the truth also
+    # supervised; 11: the depth prior scored; 10: stereo
+    version = 13
     Config = DepthConfig
     Summary = DepthSummary
     View = DepthView
@@ -91,8 +94,9 @@ class Depth(Stage):
         stereo = stereo_maps(ingest, list(depths))
         if still and stereo:
             ctx.log(
-                "depth from a still stereo camera: the rig's two eyes measured it, in "
-                "millimetres, where they matched; elsewhere the field fills it in"
+                f"depth from a still camera with metric depth: {ingest.stereo_measured_by} "
+                "measured it, in millimetres, where they cover the frame; elsewhere the field "
+                "fills it in"
             )
         elif still:
             ctx.log(
@@ -111,6 +115,11 @@ class Depth(Stage):
                 "against it say how closely the field follows it, not how right it is"
             )
         gt_depths = ground_truth_depths(gt, ingest, list(depths))
+        shading = None
+        if gt_depths and still and not stereo and not ingest.has_depth_prior:
+            gamma = sight.model.cfg.shading.gamma  # as the field's depth from shading
+            camera = k.scaled(ingest.width, ingest.height)
+            shading = shading_maps(ingest, camera, sorted(gt_depths), gamma)
         evaluation = evaluate(
             gt,
             ingest,
@@ -121,12 +130,18 @@ class Depth(Stage):
             poses.metric,
             stereo or None,
             prior_maps(ingest, list(depths)) or None,
+            shading,
         )
         if support is not None and gt_depths:
             by = scores_by_support(gt, ingest, depths, gt_depths, support.seen_again_maps)
             evaluation["by_support"] = by or None
         metrics = DepthMetrics.model_validate(evaluation)
         metrics.write(ctx.out)
+        if metrics.tool_share_left_out is not None:
+            ctx.log(
+                f"scores leave out the {metrics.tool_share_left_out:.1%} of the view on tools: "
+                "the truth there is the tool, ours the tissue inferred under it"
+            )
         if cfg.preview:
             affine = metrics.gt_kind == "relative"
             write_preview(

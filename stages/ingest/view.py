@@ -143,6 +143,15 @@ class IngestView:
         `stereo_depth(i)`)."""
         return self.file.stereo is not None
 
+    @property
+    def stereo_measured_by(self) -> str:
+        """Who measured the metric depth in stereo/, for the log's words: a rig's two eyes
+        matched here, or the data set's own depth maps (None baseline: given, not matched)."""
+        info = self.file.stereo
+        if info is not None and info.baseline_mm is None:
+            return "the data set's depth maps"
+        return "the stereo rig"
+
     def has_frame(self, index: int) -> bool:
         return index in self._by_index
 

@@ -1,6 +1,7 @@
-"""Rays through the frames' depth prior (the user's `--depth-prior`, 01_ingest/depth_prior/):
-relative depth whose scale and shift are unknown, so it supervises only the shape of each
-frame's depth (losses.prior_depth, scale-and-shift invariant as MiDaS's loss is).
+"""Rays through the frames' depth prior (the user's `--depth-prior`, 01_ingest/depth_prior/, or
+a still camera's depth from shading, nerf.shading_depth): relative depth whose scale and shift
+are unknown, so it supervises only the shape of each frame's depth (losses.prior_depth,
+scale-and-shift invariant as MiDaS's loss is).
 
 Why per frame: a monocular network's map has its own scale and shift in every frame, so a step
 takes a few frames and fits one scale and shift to each frame's rays, never across frames. The
@@ -9,6 +10,7 @@ pixels are a fixed random draw of each training frame's known pixels, as the ste
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +25,7 @@ class PriorRays:
     u: list[torch.Tensor]  # (N_f,) per frame
     v: list[torch.Tensor]
     prior: list[torch.Tensor]  # (N_f,) the prior's value (relative)
+    weight: float = 0.0  # its loss's weight (nerf.loss.depth_prior_weight, shading_prior_weight)
 
     def __len__(self) -> int:
         return sum(len(p) for p in self.prior)
@@ -46,21 +49,23 @@ class PriorRays:
 
 
 def prior_depth_targets(
-    ingest,
+    prior_of: Callable[[int], np.ndarray | None],
     positions: dict[int, int],
     usable: dict[int, np.ndarray],
     per_frame: int,
     min_pixels: int,
     device: torch.device,
     seed: int = 0,
+    weight: float = 0.0,
 ) -> PriorRays | None:
     """Up to `per_frame` pixels of each training frame in `positions` (frame index -> FrameSet
-    position) where the prior is known and the frame's mask (`usable`, bool) keeps the pixel;
-    a frame with fewer than `min_pixels` such pixels is left out. None when none is left."""
+    position) where its prior (`prior_of(index)`: relative depth, 0 unknown; None: none) is
+    known and the frame's mask (`usable`, bool) keeps the pixel; a frame with fewer than
+    `min_pixels` such pixels is left out. None when none is left. `weight`: its loss's."""
     rng = np.random.default_rng(seed)
-    out = PriorRays([], [], [], [])
+    out = PriorRays([], [], [], [], weight)
     for i, p in sorted(positions.items()):
-        prior = ingest.depth_prior(i)
+        prior = prior_of(i)
         if prior is None:
             continue
         keep = (prior > 0) & usable.get(i, np.ones(prior.shape, bool))

@@ -19,7 +19,7 @@ import torch
 
 from endopipe.pipeline.errors import EndopipeError
 from endopipe.pipeline.stage import Stage, StageContext
-from endopipe.stages.camera import Camera, lens_valid_mask, pixel_rays
+from endopipe.stages.camera import Camera, image_directions, lens_valid_mask, pixel_rays
 from endopipe.stages.centerline.view import CenterlineView
 from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.io.ground_truth import depth_of_frame
@@ -35,6 +35,7 @@ from endopipe.stages.nerf.pose_refine import record, refinement_wanted
 from endopipe.stages.nerf.prior_depth import PriorRays, prior_depth_targets
 from endopipe.stages.nerf.render import pick_device, render_image, save_model
 from endopipe.stages.nerf.scene import SceneBox
+from endopipe.stages.nerf.shading_depth import shading_depth
 from endopipe.stages.nerf.sparse_depth import SparseDepth, sparse_depth_targets
 from endopipe.stages.nerf.stereo_depth import stereo_depth_targets
 from endopipe.stages.nerf.summary import NerfSummary
@@ -197,26 +198,44 @@ def load_stereo_depth(
 
 
 def load_prior_depth(
-    ingest, positions: dict[int, int], cfg: NerfConfig, device, log
+    ingest: IngestView,
+    poses: PosesView,
+    camera: Camera,
+    positions: dict[int, int],
+    cfg: NerfConfig,
+    device: torch.device,
+    log: Callable[[str], None],
 ) -> PriorRays | None:
-    """The user's depth prior (relative) of the training frames as per-frame targets, on the
-    pixels their masks keep; only with `--depth-prior` and a weight."""
+    """Relative depth of the training frames as per-frame targets, on the pixels their masks
+    keep: the user's `--depth-prior`, or, for a still camera with nothing else to place depth
+    (no stereo, no depth given), its depth from the light's fall-off (nerf.shading_depth)."""
     lc = cfg.loss
-    if lc.depth_prior_weight <= 0 or not ingest.has_depth_prior:
+    shading = not ingest.has_depth_prior and poses.still and not ingest.has_stereo
+    weight = lc.shading_prior_weight if shading else lc.depth_prior_weight
+    if weight <= 0 or not (shading or ingest.has_depth_prior):
         return None
     usable = {i: ingest.mask(i) > 127 for i in positions}
+    prior_of, what = ingest.depth_prior, "depth prior"
+    if shading:
+        directions = image_directions(camera)  # build_frames' camera: the working size
+
+        def prior_of(i: int) -> np.ndarray:
+            return shading_depth(ingest.image(i), usable[i], directions, cfg.shading.gamma)
+
+        what = "depth from shading (the light's fall-off)"
     rays = prior_depth_targets(
-        ingest,
+        prior_of,
         positions,
         usable,
         lc.depth_prior_per_frame,
         lc.depth_prior_rays,
         device,
         cfg.train.seed,
+        weight,
     )
     frames = len(rays.frame) if rays else 0
     log(
-        f"depth prior: {len(rays) if rays else 0} rays from {frames} of {len(positions)} "
+        f"{what}: {len(rays) if rays else 0} rays from {frames} of {len(positions)} "
         "training frames (relative: a scale and shift fitted per frame)"
     )
     return rays
@@ -381,7 +400,7 @@ def set_up_training(
         sparse = load_sparse_depth(ingest, poses, train_pos, box, cfg, device, grey, log)
         log(sparse_depth_line(sparse, cfg.loss.sparse_min_angle))
     stereo = load_stereo_depth(ingest, poses, {i: pos[i] for i in train_ids}, box, cfg, device, log)
-    relative = load_prior_depth(ingest, {i: pos[i] for i in train_ids}, cfg, device, log)
+    relative = load_prior_depth(ingest, poses, k, {i: pos[i] for i in train_ids}, cfg, device, log)
     refine = refinement_wanted(cfg.pose_refine.mode, poses.file.source)
     trainer = Trainer(
         cfg,

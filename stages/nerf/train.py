@@ -313,12 +313,12 @@ class Trainer:
             if lc.stereo_spread > 0:
                 terms["stereo_spread"] = losses.depth_spread(rendered["t"], rendered["weights"], z)
                 loss = loss + lc.stereo_spread * terms["stereo_spread"]
-        if lc.depth_prior_weight > 0 and self.prior_depth is not None:
+        if self.prior_depth is not None and self.prior_depth.weight > 0:
             n, r = lc.depth_prior_frames, lc.depth_prior_rays
             frame, u, v, p = self.prior_depth.sample(n, r, self.gen)
             depth = self._depth(*self.frames.rays(frame, u, v), frame)
             terms["depth_prior"] = losses.prior_depth(depth.view(n, r), p.view(n, r))
-            loss = loss + lc.depth_prior_weight * terms["depth_prior"]
+            loss = loss + self.prior_depth.weight * terms["depth_prior"]
         if lc.opacity_weight > 0 and self.pb.prior.kind == "none":
             # A scope sees tissue along every ray, within its reach; a lumen prior asks that of
             # the rays that meet its wall already (the wall term), and none of those down it.

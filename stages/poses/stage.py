@@ -621,7 +621,10 @@ def scale_by_stereo(
     None) when the points and the stereo depth share too few pixels."""
     if est.reconstruction is None:
         if motion is not None and motion.camera == "still":
-            log("metric: a still stereo camera; its frame and depth are in millimetres")
+            log(
+                f"metric: a still camera, its depth measured by {ingest.stereo_measured_by}; "
+                "its frame and depth are in millimetres"
+            )
             return None, "stereo"
         log("metric scale: no SfM points to scale by the stereo depth; the poses stay unscaled")
         return None, None

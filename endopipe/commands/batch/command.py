@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from endopipe.commands.batch.added import per_case_added
 from endopipe.commands.batch.page import write_html
 from endopipe.commands.batch.table import write_csv
 from endopipe.jobs.driver import run_cases
@@ -38,6 +39,9 @@ def run_batch(
     until: str | None = None,
     long_case: LongCase | None = None,
     dry_run: bool = False,
+    right: Path | None = None,
+    baseline_mm: float | None = None,
+    depth_prior: Path | None = None,
     console: Console,
     out: Console,
 ) -> list[CaseRow]:
@@ -48,7 +52,8 @@ def run_batch(
     and returns its row when the case is a recording it ran (a long input whose keyframes fill
     more than one window: a Hamlyn sequence, a whole video), None when it is an ordinary case.
     Recordings go one after another, each using the executor for its windows; the ordinary
-    cases go together."""
+    cases go together. `right` / `depth_prior`: folders holding one folder per case
+    (commands.batch.added); `baseline_mm` the right eyes' rig."""
     from endopipe.stages.io.cases import find_cases
 
     if until is not None:
@@ -60,17 +65,30 @@ def run_batch(
     )
     ensure_writable(workdir)
     wd = workdir.resolve()
-    cases = find_cases(folder, format_, skip=(wd,))
+    beside = tuple(p.resolve() for p in (right, depth_prior) if p is not None)
+    cases = find_cases(folder, format_, skip=(wd, *beside))
     if not cases:
         raise EndopipeError(
             f"no cases found in {folder}: expected videos, image folders, endopipe case folders "
             "or Hamlyn / C3VD / SimCol3D sequences (or pass --format)"
         )
+    added = per_case_added(
+        cases,
+        folder,
+        right=right,
+        baseline_mm=baseline_mm,
+        depth_prior=depth_prior,
+        note=lambda m: console.print(f"[yellow]{escape(m)}[/yellow]"),
+    )
     table = Table(title=f"{len(cases)} case(s) in {folder}")
-    for col in ("case", "reader", "input"):
+    with_added = right is not None or depth_prior is not None
+    for col in ("case", "reader", "input", "with")[: 3 + with_added]:
         table.add_column(col, overflow="fold")
     for c in cases:
-        table.add_row(escape(c.name), c.format, escape(str(c.path)))
+        cells = [escape(c.name), c.format, escape(str(c.path))]
+        if with_added:
+            cells.append(added[c.name].said())
+        table.add_row(*cells)
     out.print(table)
     if dry_run:
         return []
@@ -83,6 +101,9 @@ def run_batch(
             workdir=str(wd),
             configs=resolved,
             until=until,
+            right=_text(added[c.name].right),
+            baseline_mm=baseline_mm if added[c.name].right is not None else None,
+            depth_prior=_text(added[c.name].depth_prior),
         )
         for c in cases
     ]
@@ -119,6 +140,10 @@ def run_batch(
             f"{len(failed)} of {len(rows)} case(s) failed; reasons in {csv_path}", exit_code=3
         )
     return rows
+
+
+def _text(path: Path | None) -> str | None:
+    return str(path.resolve()) if path is not None else None
 
 
 def print_case_row(console: Console, row: CaseRow) -> None:

@@ -19,6 +19,10 @@ GUESS_LABELS = {
     "brightness": ("brightness guess", "inverse-square shading, depth = 1/√brightness"),
     "stereo": ("stereo matcher", "the rig's own depth, left-right checked"),
     "depth_prior": ("your depth prior", "the --depth-prior maps, median-scaled as ours are"),
+    "shading": (
+        "depth from shading",
+        "the light's fall-off alone: 1/√(blurred linear brightness), a still camera's",
+    ),
 }
 
 
