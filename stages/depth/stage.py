@@ -95,7 +95,7 @@ class Depth(Stage):
         if still and stereo:
             ctx.log(
                 f"depth from a still camera with metric depth: {ingest.stereo_measured_by} "
-                "measured it, in millimetres, where they cover the frame; elsewhere the field "
+                "measured it, in millimetres, where its maps cover the frame; elsewhere the field "
                 "fills it in"
             )
         elif still:
