@@ -62,6 +62,9 @@ ConfigOption = Annotated[
     list[str] | None, typer.Option("--config", help="Preset name or YAML file; repeatable.")
 ]
 SetOption = Annotated[list[str] | None, typer.Option("--set", help="stage.key=value; repeatable.")]
+BaselineMmOption = Annotated[
+    float | None, typer.Option(help="Distance between the two eyes of --right's rig, mm.")
+]
 Command = TypeVar("Command", bound=Callable[..., Any])
 
 
@@ -169,10 +172,7 @@ def run(
             "number in their names (a video's frame i: the i-th image); needs --baseline-mm."
         ),
     ] = None,
-    baseline_mm: Annotated[
-        float | None,
-        typer.Option(help="Distance between the two eyes of --right's rig, mm."),
-    ] = None,
+    baseline_mm: BaselineMmOption = None,
     depth_prior: Annotated[
         Path | None,
         typer.Option(
@@ -511,9 +511,7 @@ def batch(
             "image02/ is found without it."
         ),
     ] = None,
-    baseline_mm: Annotated[
-        float | None, typer.Option(help="Distance between the two eyes of --right's rig, mm.")
-    ] = None,
+    baseline_mm: BaselineMmOption = None,
     depth_prior: Annotated[
         Path | None,
         typer.Option(

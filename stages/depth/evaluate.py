@@ -72,22 +72,18 @@ def inside_view(ingest: IngestView) -> np.ndarray:
     return fov > 0 if fov is not None else np.ones((ingest.height, ingest.width), bool)
 
 
-def scored_pixels(ingest: IngestView, i: int, inside: np.ndarray) -> np.ndarray:
-    """The pixels of frame i whose depth is scored: inside the field of view and off a tool.
+def scored_pixels(
+    ingest: IngestView, ids: list[int], inside: np.ndarray
+) -> tuple[list[np.ndarray], float | None]:
+    """The pixels of frames `ids` whose depth is scored: inside the field of view and off a
+    tool; and the share of the view left out for being on a tool (None without tool masks).
     On a tool the truth is the tool's surface, while ours is the tissue the field infers under
     it (docs/formats.md): scored there, a tool would count as our error. The deformable
     family's evaluations (EndoNeRF, Deform3DGS) leave tools out alike."""
-    tool = ingest.tool_mask(i)
-    return inside if tool is None else inside & ~tool
-
-
-def tool_share_left_out(ingest: IngestView, ids: list[int], inside: np.ndarray) -> float | None:
-    """The share of the scored frames' field of view left out of the depth scores for being
-    on a tool; None when ingest has no tool masks."""
-    tools = [t for i in ids if (t := ingest.tool_mask(i)) is not None]
-    if not tools:
-        return None
-    return float(np.mean([(t & inside).sum() / max(int(inside.sum()), 1) for t in tools]))
+    tools = [ingest.tool_mask(i) for i in ids]
+    masks = [inside if t is None else inside & ~t for t in tools]
+    shares = [(t & inside).sum() / max(int(inside.sum()), 1) for t in tools if t is not None]
+    return masks, float(np.mean(shares)) if shares else None
 
 
 def evaluate(
@@ -120,12 +116,12 @@ def evaluate(
         sequence = protocol(gt)
         ours = [depths[i] for i in ids]
         truth = [gt_depths[i] for i in ids]
-        masks = [scored_pixels(ingest, i, inside) for i in ids]
+        masks, tool_share = scored_pixels(ingest, ids, inside)
         if sequence is depth_sequence_metrics and metric:
             sequence = partial(depth_sequence_metrics, unscaled=True)
         metrics.update(sequence(ours, truth, masks, ids))
         metrics["gt_kind"] = kind
-        metrics["tool_share_left_out"] = tool_share_left_out(ingest, ids, inside)
+        metrics["tool_share_left_out"] = tool_share
         centre = principal or ((ingest.width - 1) / 2, (ingest.height - 1) / 2)
         metrics["baselines"] = {}
         maps_of = guesses(ingest, ids, inside, centre)
@@ -193,7 +189,7 @@ def scores_by_support(
     block = "affine_invariant" if sequence is affine_sequence_metrics else "median_scaled"
     truth = [gt_depths[i] for i in ids]
     inside = inside_view(ingest)
-    masks = [scored_pixels(ingest, i, inside) for i in ids]
+    masks, _ = scored_pixels(ingest, ids, inside)
     out = {}
     for name, keep in (("seen_again", True), ("rest", False)):
         ours = [np.where(seen_again[i] == keep, depths[i], 0.0).astype(np.float32) for i in ids]

@@ -33,6 +33,7 @@ from endopipe.stages.depth.summary import DepthSummary
 from endopipe.stages.depth.support import write_support
 from endopipe.stages.depth.view import DEPTH_DIR, OPACITY_DIR, PREVIEW_FILE, DepthView, frame_file
 from endopipe.stages.ingest.view import IngestView
+from endopipe.stages.nerf.shading_depth import only_shading_places_depth
 from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
 
@@ -116,7 +117,7 @@ class Depth(Stage):
             )
         gt_depths = ground_truth_depths(gt, ingest, list(depths))
         shading = None
-        if gt_depths and still and not stereo and not ingest.has_depth_prior:
+        if gt_depths and only_shading_places_depth(ingest, poses):
             gamma = sight.model.cfg.shading.gamma  # as the field's depth from shading
             camera = k.scaled(ingest.width, ingest.height)
             shading = shading_maps(ingest, camera, sorted(gt_depths), gamma)

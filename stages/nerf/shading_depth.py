@@ -25,6 +25,13 @@ MIN_USABLE_SHARE = 0.5
 MIN_LINEAR = 1e-4
 
 
+def only_shading_places_depth(ingest, poses) -> bool:
+    """A camera that stands still with no stereo, no depth given and no `--depth-prior`
+    (IngestView, PosesView): the one case the depth from shading is for, in the field's
+    training (an option) and beside its scores."""
+    return bool(poses.still) and not ingest.has_stereo and not ingest.has_depth_prior
+
+
 def shading_depth(
     rgb: np.ndarray, usable: np.ndarray, directions: np.ndarray, gamma: float
 ) -> np.ndarray:

@@ -35,7 +35,7 @@ from endopipe.stages.nerf.pose_refine import record, refinement_wanted
 from endopipe.stages.nerf.prior_depth import PriorRays, prior_depth_targets
 from endopipe.stages.nerf.render import pick_device, render_image, save_model
 from endopipe.stages.nerf.scene import SceneBox
-from endopipe.stages.nerf.shading_depth import shading_depth
+from endopipe.stages.nerf.shading_depth import only_shading_places_depth, shading_depth
 from endopipe.stages.nerf.sparse_depth import SparseDepth, sparse_depth_targets
 from endopipe.stages.nerf.stereo_depth import stereo_depth_targets
 from endopipe.stages.nerf.summary import NerfSummary
@@ -210,7 +210,7 @@ def load_prior_depth(
     keep: the user's `--depth-prior`, or, for a still camera with nothing else to place depth
     (no stereo, no depth given), its depth from the light's fall-off (nerf.shading_depth)."""
     lc = cfg.loss
-    shading = not ingest.has_depth_prior and poses.still and not ingest.has_stereo
+    shading = only_shading_places_depth(ingest, poses)
     weight = lc.shading_prior_weight if shading else lc.depth_prior_weight
     if weight <= 0 or not (shading or ingest.has_depth_prior):
         return None

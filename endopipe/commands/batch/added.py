@@ -46,16 +46,11 @@ def per_case_added(
     batch_folder: Path,
     *,
     right: Path | None,
-    baseline_mm: float | None,
     depth_prior: Path | None,
     note: Callable[[str], None],
 ) -> dict[str, CaseAdded]:
     """Each case's right eye and depth prior; a case with no folder of its own runs without
     (one line says which). A root with no folder for any case is refused: it is the wrong one."""
-    if baseline_mm is not None and right is None:
-        raise InputError(
-            "--baseline-mm goes with --right FOLDER (one folder of right-eye frames per case)"
-        )
     found: dict[str, dict[str, Path | None]] = {c.name: {} for c in cases}
     for flag, root in (("--right", right), ("--depth-prior", depth_prior)):
         if root is None:

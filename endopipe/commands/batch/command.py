@@ -53,7 +53,7 @@ def run_batch(
     more than one window: a Hamlyn sequence, a whole video), None when it is an ordinary case.
     Recordings go one after another, each using the executor for its windows; the ordinary
     cases go together. `right` / `depth_prior`: folders holding one folder per case
-    (commands.batch.added); `baseline_mm` the right eyes' rig."""
+    (commands.batch.added); `baseline_mm` the rig's baseline, checked per case as `run` does."""
     from endopipe.stages.io.cases import find_cases
 
     if until is not None:
@@ -76,7 +76,6 @@ def run_batch(
         cases,
         folder,
         right=right,
-        baseline_mm=baseline_mm,
         depth_prior=depth_prior,
         note=lambda m: console.print(f"[yellow]{escape(m)}[/yellow]"),
     )
@@ -102,7 +101,9 @@ def run_batch(
             configs=resolved,
             until=until,
             right=_text(added[c.name].right),
-            baseline_mm=baseline_mm if added[c.name].right is not None else None,
+            # as `run` takes it (stages.io.added): with the case's right eye, or alone on its
+            # own rig; a case --right gave no folder runs without a rig's baseline
+            baseline_mm=baseline_mm if right is None or added[c.name].right else None,
             depth_prior=_text(added[c.name].depth_prior),
         )
         for c in cases
