@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -105,3 +106,38 @@ def withdrawal(tmp_path_factory: pytest.TempPathFactory) -> Path:
     src = tmp_path_factory.mktemp("withdrawal") / "withdrawal"
     generate_case(src, SynthConfig(**WITHDRAWAL))
     return src
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """An xdist worker trains with one torch thread (and its subprocesses with one OpenMP
+    thread): two workers on two cores would otherwise spin against each other."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        import torch
+
+        os.environ["OMP_NUM_THREADS"] = "1"
+        torch.set_num_threads(1)
+
+
+#: Test files that use a costly session fixture, and that fixture: under `pytest -n` the files
+#: sharing one run on one worker, so it is built once there.
+SHARED_FIXTURE_OF_FILE = {
+    "test_bench": "tiny_run",
+    "test_pipeline_e2e": "tiny_run",
+    "test_report": "tiny_run",
+    "test_keyframes": "withdrawal",
+    "test_recording": "withdrawal",
+}
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log):
+    """xdist's `loadfile` (each file on one worker: its module fixtures are built once), with
+    the files of SHARED_FIXTURE_OF_FILE grouped by their fixture."""
+    from xdist.scheduler import LoadFileScheduling
+
+    class SharedFixtureScheduling(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            file = super()._split_scope(nodeid)
+            return SHARED_FIXTURE_OF_FILE.get(Path(file).stem, file)
+
+    return SharedFixtureScheduling(config, log)

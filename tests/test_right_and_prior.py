@@ -311,7 +311,7 @@ def test_the_prior_loss_pulls_depth_towards_the_priors_shape() -> None:
         opt.zero_grad()
         prior_depth(depth, prior).backward()
         opt.step()
-    assert float(prior_depth(depth, prior)) < 0.05 * first
+    assert float(prior_depth(depth, prior).detach()) < 0.05 * first
     for k in range(2):
         r = np.corrcoef(depth[k].detach().numpy(), prior[k].numpy())[0, 1]
         assert r > 0.95
