@@ -132,7 +132,9 @@ SHARED_FIXTURE_OF_FILE = {
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config: pytest.Config, log):
     """xdist's `loadfile` (each file on one worker: its module fixtures are built once), with
-    the files of SHARED_FIXTURE_OF_FILE grouped by their fixture."""
+    the files of SHARED_FIXTURE_OF_FILE grouped by their fixture. Another `--dist`: xdist's own."""
+    if config.getvalue("dist") != "loadfile":
+        return None
     from xdist.scheduler import LoadFileScheduling
 
     class SharedFixtureScheduling(LoadFileScheduling):
