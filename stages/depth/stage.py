@@ -119,8 +119,7 @@ class Depth(Stage):
         shading = None
         if gt_depths and only_shading_places_depth(ingest, poses):
             gamma = sight.model.cfg.shading.gamma  # as the field's depth from shading
-            camera = k.scaled(ingest.width, ingest.height)
-            shading = shading_maps(ingest, camera, sorted(gt_depths), gamma)
+            shading = shading_maps(ingest, k, sorted(gt_depths), gamma)  # k: the working size
         evaluation = evaluate(
             gt,
             ingest,
