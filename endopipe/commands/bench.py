@@ -214,6 +214,16 @@ def _plan(quick: bool) -> BenchPlan:
             BenchCase(
                 **COLON, name="hamlyn_stereo_still", layout="hamlyn", stereo=True, still_camera=True
             ),
+            # the same still rig over the cavity: at its distances (12-33 mm) the right eye sees
+            # most of the left one's view, as a laparoscope's does; the colon's near wall (8 mm)
+            # puts 30% of the width out of the right eye's sight
+            BenchCase(
+                **{**COLON, "shape": "cavity"},
+                name="hamlyn_stereo_still_cavity",
+                layout="hamlyn",
+                stereo=True,
+                still_camera=True,
+            ),
             # C3VD's layout: its calibration read as the lens, its model mesh the Chamfer truth
             BenchCase(**COLON, name="c3vd_layout", layout="c3vd"),
         ],

@@ -193,7 +193,13 @@ def load_stereo_depth(
         ingest, positions, 1.0, box.scale, lc.stereo_per_frame, device, cfg.train.seed
     )
     frames = len(torch.unique(stereo.frame)) if stereo else 0
-    log(f"stereo depth: {len(stereo) if stereo else 0} matched-pixel rays from {frames} frames")
+    held = (
+        f"; each ray's density held at its depth (nerf.loss.stereo_spread {lc.stereo_spread:g})"
+        if stereo and lc.spread_weight(poses.still) > 0
+        else ""
+    )
+    rays = len(stereo) if stereo else 0
+    log(f"stereo depth: {rays} matched-pixel rays from {frames} frames{held}")
     return stereo
 
 
@@ -293,8 +299,11 @@ def choose_geometry(cfg: NerfConfig, prior, log) -> NerfConfig:
 
 
 def still_camera_settings(cfg: NerfConfig, poses, log) -> NerfConfig:
-    """A still camera's field: its grid unwarped (when `field.warp` is auto) and its shading
-    without n.l (why: below)."""
+    """A still camera's field: its grid unwarped (when `field.warp` is auto), its shading
+    without n.l and its stereo rays' density held at their depth (why: below and in
+    `LossConfig.stereo_spread`)."""
+    spread = cfg.loss.spread_weight(poses.still)
+    cfg = cfg.model_copy(update={"loss": cfg.loss.model_copy(update={"stereo_spread": spread})})
     if poses.still and cfg.field.warp == "auto":
         # The warp keeps fine cells around the camera path; a still camera's path is a point
         # and its scene lies a typical distance away, in the coarse cells (held-out 15.9 dB

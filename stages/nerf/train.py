@@ -310,9 +310,10 @@ class Trainer:
             rendered = self._render(*self.frames.rays(frame, u, v), frame)
             terms["stereo"] = losses.sparse_depth(rendered["depth"], z)
             loss = loss + lc.stereo_weight * terms["stereo"]
-            if lc.stereo_spread > 0:
+            spread = lc.spread_weight(still=False)  # set_up_training resolved auto
+            if spread > 0:
                 terms["stereo_spread"] = losses.depth_spread(rendered["t"], rendered["weights"], z)
-                loss = loss + lc.stereo_spread * terms["stereo_spread"]
+                loss = loss + spread * terms["stereo_spread"]
         if self.prior_depth is not None and self.prior_depth.weight > 0:
             n, r = lc.depth_prior_frames, lc.depth_prior_rays
             frame, u, v, p = self.prior_depth.sample(n, r, self.gen)
