@@ -42,6 +42,26 @@ def test_space_time_grid_starts_static_and_interpolates_its_change_in_time():
     assert float(g.change_penalty().detach()) > 0
 
 
+def test_points_at_one_time_get_the_same_values_and_gradients_as_points_at_many():
+    """A frame rendered at its time slices the change once (prepare's fast path); its values
+    and the change's gradient are those of the general path, point by point."""
+    g = VMTimeGrid((12, 9, 10), 4, times=7)
+    g.change.data.normal_(0.0, 1.0)
+    x = torch.rand(300, 4) * 2 - 1
+    for t in (-1.0, -0.33, 0.71, 1.0):
+        x[:, 3] = t
+        other = torch.tensor([[0.1, 0.2, 0.3, 0.5 if t < 0.5 else -0.5]])  # another time
+        assert g.prepare(x)[4] is None and g.prepare(torch.cat([x, other]))[4] is not None
+        one = g(x)
+        one.square().sum().backward()
+        grad_one, g.change.grad = g.change.grad.clone(), None
+        many = g(torch.cat([x, other]))[:300]
+        many.square().sum().backward()
+        assert torch.allclose(one, many, atol=1e-6)
+        assert torch.allclose(grad_one, g.change.grad, atol=1e-5)
+        g.change.grad, g.planes.grad, g.lines.grad = None, None, None
+
+
 def still_camera_frames(cfg, n: int = 9):
     """The tube seen from one place, its colour fading from red-tinted to blue-tinted."""
     frames, _, _, prior, box, k, poses, _ = tiny_setup(cfg, n_frames=n)
