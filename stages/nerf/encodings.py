@@ -171,6 +171,11 @@ class VMGrid(nn.Module):
         return tv
 
 
+#: Points at up to this many distinct times read lines sliced at each (a training batch's
+#: frames, a rendered frame's one time): two reads a point instead of six.
+MAX_SLICES = 1
+
+
 class VMTimeGrid(VMGrid):
     """HexPlane's space-time factorisation on the VM grid, as a static grid and a change:
     sum_m plane_m(u, v) * (line_m(w) + change_m(w, t)), the change a plane over (w, time) with
@@ -193,12 +198,16 @@ class VMTimeGrid(VMGrid):
         self.change = nn.Parameter(torch.zeros(self.times * self._line_rows(), channels))
 
     def prepare(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """As VMGrid's, and the change's (w, time) corners; points all at one time (a frame
-        rendered) get that time instead: `forward` then slices the change there once."""
+        """As VMGrid's, and where the change is read. Points at a few times (a frame rendered,
+        a batch from some frames) read lines sliced at their time (`sliced`): `cidx` is None
+        and `cw` the times. Otherwise the change's (w, time) corners and weights."""
         pidx, pw, lidx, lw = super().prepare(x[:, :3])
-        t = x[:, 3]
-        if x.shape[0] and bool((t == t[0]).all()):
-            return pidx, pw, lidx, lw, None, t[:1]
+        with torch.no_grad():
+            times, which = torch.unique(x[:, 3], return_inverse=True)
+        if len(times) <= MAX_SLICES:
+            rows = self._line_rows()
+            lidx = (lidx.view(-1, 3, 2) + (which * rows)[:, None, None]).view(-1, 2)
+            return pidx, pw, lidx, lw, None, times
         _, _, c, res, _, _, loff, _ = self._constants(x.device)
         with torch.no_grad():
             p = ((x[:, :3] + 1.0) * (0.5 * (res - 1))).clamp_(min=0.0).minimum(res - 1.0)
@@ -220,26 +229,27 @@ class VMTimeGrid(VMGrid):
     ) -> torch.Tensor:
         pidx, pw, lidx, lw, cidx, cw = prep if prep is not None else self.prepare(x)
         plane = gather_interp(self.planes, pidx, pw)
-        if cidx is None:  # one time, `cw`: the lines at that time (the same sums, 40% faster)
-            line = gather_interp(self.lines + self.change_at(cw), lidx, lw)
+        if cidx is None:  # the lines at each of the times `cw` (the same sums, fewer reads)
+            line = gather_interp(self.sliced(cw), lidx, lw)
         else:
             line = gather_interp(self.lines, lidx, lw) + gather_interp(self.change, cidx, cw)
         return (plane * line).view(x.shape[0], 3 * self.channels)
 
-    def change_at(self, time: torch.Tensor) -> torch.Tensor:
-        """The change at one time in [-1, 1] (a 1-element tensor), linear between its time
-        nodes as `prepare` weighs them: (line rows, channels), in the lines' order."""
-        q = ((time.reshape(()) + 1.0) * (0.5 * (self.times - 1))).clamp(0.0, self.times - 1.0)
-        it = int(q.floor().clamp(max=max(self.times - 2, 0)))
-        ft = (q - it).to(self.change.dtype)
-        nxt = min(it + 1, self.times - 1)
+    def sliced(self, times: torch.Tensor) -> torch.Tensor:
+        """The lines plus the change at each of `times` (U,) in [-1, 1], the change linear
+        between its time nodes as `prepare` weighs it: (U x line rows, channels), time-major."""
+        q = ((times + 1.0) * (0.5 * (self.times - 1))).clamp(0.0, self.times - 1.0)
+        it = q.floor().clamp(max=max(self.times - 2, 0))
+        ft = (q - it).to(self.change.dtype)[:, None, None]
+        it = it.long()
+        nxt = (it + 1).clamp(max=self.times - 1)
         parts, off = [], 0
         for *_, c in self.PAIRS:
             rc = self.res[c]
             ch = self.change[off : off + self.times * rc].view(self.times, rc, -1)
             parts.append((1.0 - ft) * ch[it] + ft * ch[nxt])
             off += self.times * rc
-        return torch.cat(parts)
+        return (self.lines[None] + torch.cat(parts, 1)).reshape(-1, self.channels)
 
     @torch.no_grad()
     def upsampled(self, res: tuple[int, int, int]) -> VMTimeGrid:
