@@ -19,9 +19,12 @@ class DepthConfig(StageConfig):
         (16, 8),
         description="A field that changes with time has no one surface to bake, so every frame "
         "is volume-rendered: its coarse and fine samples per ray (the nerf stage renders "
-        "held-out frames with 32, 16). EndoNeRF's cutting clip: 1.4 s a frame against 3.1, "
-        "depth 1.6% apart (median), but 25% of the pixels left without depth (their weights "
-        "spread over no one surface) against 13%.",
+        "held-out frames with 32, 16). Fewer smear a surface's weights over no one depth "
+        "(scripts/depth_samples.py): the pulled wall keeps depth on 73.6% of its tissue at "
+        "16 + 8, 80.1% at 20 + 10, 87.1% at 24 + 12 (AbsRel 0.0572 / 0.0586 / 0.0558); "
+        "EndoNeRF's cutting clip lacks depth on 26.7% / 19.4% / 15.9% of its pixels, but "
+        "at 24 + 12 its depth stage takes 1.48 s a frame against 0.81, and the clip 10.0 min "
+        "from nothing against 7.9.",
     )
     device: Literal["auto", "cpu", "cuda"] = Field(
         "auto",
