@@ -42,24 +42,24 @@ def test_space_time_grid_starts_static_and_interpolates_its_change_in_time():
     assert float(g.change_penalty().detach()) > 0
 
 
-def test_lines_sliced_at_each_time_give_the_corners_values_and_gradients(monkeypatch):
-    """Points at a few times (a frame rendered, a batch from some frames) read the lines
-    sliced at their time; values and gradients are those of the change's (w, time) corners."""
-    from endopipe.stages.nerf import encodings
-
+def test_points_at_one_time_get_the_values_and_gradients_of_the_change_corners():
+    """A frame rendered at its own time reads the lines sliced there (prepare's fast path);
+    its values and gradients are those of the change's (w, time) corners, which a batch at
+    two times reads, point by point."""
     g = VMTimeGrid((12, 9, 10), 4, times=7)
     g.change.data.normal_(0.0, 1.0)
     x = torch.rand(300, 4) * 2 - 1
-    for times in ([-1.0], [-0.33], [1.0], [-1.0, -0.33, 0.2, 0.71, 1.0]):
-        x[:, 3] = torch.tensor(times)[torch.arange(300) % len(times)]
+    for t in (-1.0, -0.33, 0.71, 1.0):
+        x[:, 3] = t
+        other = torch.tensor([[0.1, 0.2, 0.3, 0.5 if t < 0.5 else -0.5]])  # another time
+        both = torch.cat([x, other])
+        assert g.prepare(x)[4] is None and g.prepare(both)[4] is not None
         values, grads = [], []
-        for slices in (encodings.MAX_SLICES, 0):  # sliced, then the corners
-            monkeypatch.setattr(encodings, "MAX_SLICES", slices)
-            assert (g.prepare(x)[4] is None) == (slices > 0)
-            out = g(x)
+        for points in (x, both):
+            out = g(points)[:300]
             out.square().sum().backward()
             values.append(out.detach())
-            grads.append((g.change.grad.clone(), g.lines.grad.clone()))
+            grads.append((g.change.grad.clone(), g.lines.grad.clone(), g.planes.grad.clone()))
             g.zero_grad(set_to_none=True)
         assert torch.allclose(values[0], values[1], atol=1e-6)
         for a, b in zip(grads[0], grads[1], strict=True):
