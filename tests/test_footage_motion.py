@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from endopipe.stages.poses.config import MotionConfig
-from endopipe.stages.poses.motion import footage_fps, judge_motion
+from endopipe.stages.poses.motion import FootageMotion, footage_fps, judge_motion
 
 
 def texture(h: int, w: int, seed: int = 0) -> np.ndarray:
@@ -71,6 +71,19 @@ def test_a_still_view_of_a_still_scene_is_still():
     m = judge(clip("still"))
     assert (m.camera, m.scene) == ("still", "rigid")
     assert m.moving_share == 0.0
+
+
+def test_a_view_no_corner_lasts_through_is_a_moving_camera_whose_travel_is_unmeasured():
+    """Each frame a new view (a fast pull-back through a cavity): no corner lasts a span, so
+    its travel is unknown (None, not inf), said in words, and the judgement survives the
+    poses summary's JSON."""
+    rng = np.random.default_rng(0)
+    noise = [rng.integers(0, 255, (96, 128), np.uint8) for _ in range(40)]
+    frames = [cv2.GaussianBlur(f, (3, 3), 0) for f in noise]
+    m = judge(frames)
+    assert m.camera == "moving" and m.camera_move is None
+    assert "too few corners lasted" in m.said and "inf" not in m.said
+    assert FootageMotion.model_validate_json(m.model_dump_json()) == m
 
 
 def test_fps_from_the_frames_times():

@@ -32,7 +32,10 @@ class FootageMotion(BaseModel):
 
     camera: Literal["still", "moving"]
     scene: Literal["rigid", "moving", "not measured"]
-    camera_move: float = Field(description="median corner travel over a span, / diagonal")
+    camera_move: float | None = Field(
+        description="median corner travel over a span, / diagonal; None: too few corners "
+        "lasted the spans to measure it (the view changed)"
+    )
     kept: float = Field(description="median share of corners tracked to a span's end")
     moving_share: float | None = Field(
         None, description="still camera: share of corners that moved with the scene"
@@ -103,7 +106,7 @@ def judge_motion(
         return FootageMotion(
             camera="moving",
             scene="not measured",
-            camera_move=float("nan"),
+            camera_move=None,
             kept=0.0,
             span_frames=span,
             spans=0,
@@ -111,20 +114,22 @@ def judge_motion(
         )
     move, kept_share = float(np.median(moves)), float(np.median(kept))
     seconds = span / fps
+    counted = f"median of {len(moves)} spans; {100 * kept_share:.0f}% tracked to the end"
     travel = (
-        f"corners moved {100 * move:.2f}% of the image diagonal in {seconds:.2g} s "
-        f"(median of {len(moves)} spans; {100 * kept_share:.0f}% tracked to the end)"
+        f"corners moved {100 * move:.2f}% of the image diagonal in {seconds:.2g} s ({counted})"
+        if np.isfinite(move)  # inf: most spans kept under 10 corners to their end
+        else f"too few corners lasted {seconds:.2g} s to measure their travel ({counted})"
     )
     if move >= cfg.still_move or kept_share < cfg.min_kept:
         why = (
             f"{travel}, over {100 * cfg.still_move:g}%"
-            if move >= cfg.still_move
+            if np.isfinite(move) and move >= cfg.still_move
             else f"{travel}: the view changed"
         )
         return FootageMotion(
             camera="moving",
             scene="not measured",
-            camera_move=move,
+            camera_move=move if np.isfinite(move) else None,
             kept=kept_share,
             span_frames=span,
             spans=len(moves),
