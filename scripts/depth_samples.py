@@ -70,18 +70,15 @@ def main() -> None:
         known = {i: covered[i] & (truth[i] > 0) for i in frames if i in truth}
         scored = [i for i in known if known[i].any()]
         if scored:
-            errs = [rel_errors(depth[i], truth[i], known[i])[known[i]] for i in scored]
-            line += f"; AbsRel {np.mean([e.mean() for e in errs]):.4f}"
+            rel = {i: rel_errors(depth[i], truth[i], known[i]) for i in scored}
+            line += f"; AbsRel {np.mean([rel[i][known[i]].mean() for i in scored]):.4f}"
             if first is not None:
-                added = [
-                    rel_errors(depth[i], truth[i], known[i])[known[i] & ~(first[i] > 0)]
-                    for i in scored
-                ]
-                added = [a for a in added if a.size]
-                if added:
-                    line += f" ({np.mean(np.concatenate(added)):.4f} on the pixels it adds)"
+                added = np.concatenate([rel[i][known[i] & ~(first[i] > 0)] for i in scored])
+                if added.size:
+                    line += f" ({added.mean():.4f} on the pixels it adds)"
         print(line)
-        first = depth if first is None else first
+        if first is None:
+            first = depth
 
 
 if __name__ == "__main__":
