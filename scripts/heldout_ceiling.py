@@ -59,22 +59,23 @@ def main() -> None:
     ingest = IngestView(args.case / "01_ingest")
     held = NerfView(args.case / "04_nerf").heldout
     order = [f.index for f in ingest.frames]
-    train = [i for i in order if i not in set(held)]
+    held_set = set(held)
+    train = [i for i in order if i not in held_set]
     image = {i: ingest.image(i).astype(np.float32) / 255.0 for i in order}
+    mask = {i: ingest.mask(i) > 127 for i in order}  # the pixels the PSNR counts
     scored = []
     rows: dict[str, list[float]] = {"neighbour average": [], "flow interpolation": []}
     for i in held:
-        near = neighbour_frames(i, order, set(held))
+        near = neighbour_frames(i, order, held_set)
         if len(near) < 2:
             continue  # an end frame: one neighbour, nothing to interpolate
         scored.append((i, near))
         a, b = (image[j] for j in near)
-        mask = ingest.mask(i) > 127
         rows["neighbour average"].append(
-            image_metrics(neighbour_average([a, b]), image[i], mask)["psnr"]
+            image_metrics(neighbour_average([a, b]), image[i], mask[i])["psnr"]
         )
         flowed = 0.5 * (moved_half_way(a, b) + moved_half_way(b, a))
-        rows["flow interpolation"].append(image_metrics(flowed, image[i], mask)["psnr"])
+        rows["flow interpolation"].append(image_metrics(flowed, image[i], mask[i])["psnr"])
 
     frames = np.stack([image[i].reshape(-1) for i in train], 1)
     mean = frames.mean(1, keepdims=True)
@@ -88,7 +89,7 @@ def main() -> None:
                     image[i].shape
                 ),
                 image[i],
-                ingest.mask(i) > 127,
+                mask[i],
             )["psnr"]
             for i, near in scored
         ]
@@ -96,7 +97,7 @@ def main() -> None:
             image_metrics(
                 (mean[:, 0] + u[:, :k] @ coef[:, n]).reshape(image[j].shape),
                 image[j],
-                ingest.mask(j) > 127,
+                mask[j],
             )["psnr"]
             for n, j in enumerate(train)
         ]

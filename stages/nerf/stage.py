@@ -192,14 +192,12 @@ def load_stereo_depth(
     stereo = stereo_depth_targets(
         ingest, positions, 1.0, box.scale, lc.stereo_per_frame, device, cfg.train.seed
     )
-    frames = len(torch.unique(stereo.frame)) if stereo else 0
-    held = (
-        f"; each ray's density held at its depth (nerf.loss.stereo_spread {lc.stereo_spread:g})"
-        if stereo and lc.spread_weight(poses.still) > 0
-        else ""
-    )
-    rays = len(stereo) if stereo else 0
-    log(f"stereo depth: {rays} matched-pixel rays from {frames} frames{held}")
+    rays, frames = (len(stereo), len(torch.unique(stereo.frame))) if stereo else (0, 0)
+    line = f"stereo depth: {rays} matched-pixel rays from {frames} frames"
+    spread = lc.spread_weight(poses.still)
+    if rays and spread > 0:
+        line += f"; each ray's density held at its depth (nerf.loss.stereo_spread {spread:g})"
+    log(line)
     return stereo
 
 
@@ -301,7 +299,7 @@ def choose_geometry(cfg: NerfConfig, prior, log) -> NerfConfig:
 def still_camera_settings(cfg: NerfConfig, poses, log) -> NerfConfig:
     """A still camera's field: its grid unwarped (when `field.warp` is auto), its shading
     without n.l and its stereo rays' density held at their depth (why: below and in
-    `LossConfig.stereo_spread`)."""
+    `LossConfig.stereo_spread`, whose auto is resolved here for any camera)."""
     spread = cfg.loss.spread_weight(poses.still)
     cfg = cfg.model_copy(update={"loss": cfg.loss.model_copy(update={"stereo_spread": spread})})
     if poses.still and cfg.field.warp == "auto":
