@@ -323,7 +323,13 @@ def synth(
     frames: int = 60,
     width: int = 320,
     height: int = 256,
-    shape: Annotated[str, typer.Option(help="colon | cavity")] = "colon",
+    shape: Annotated[
+        str | None,
+        typer.Option(
+            help="colon | cavity (unset: cavity for the laparoscopic layouts hamlyn and scared, "
+            "colon otherwise)."
+        ),
+    ] = None,
     lens: Annotated[
         str, typer.Option(help="pinhole | barrel (OpenCV k1,k2) | fisheye (OpenCV equidistant)")
     ] = "pinhole",

@@ -159,6 +159,10 @@ def test_synth_stereo_hamlyn_with_a_still_camera(tmp_path: Path) -> None:
         assert len(list((out / sub).iterdir())) == 2
     source = open_input(out)
     assert source.stereo.baseline_mm == 5.0 and source.ground_truth().kind == "exact"
+    # a laparoscopic layout's scene is the cavity (walls 12-33 mm away), not the colon, whose
+    # near wall (under 11 mm here) a 5 mm rig's right eye partly misses
+    depth = source.ground_truth().depth(0)
+    assert depth[depth > 0].min() > 15.0
     # the right eye is another view: the same scene shifted, not the left image again
     left, right = next(iter(source.frames())).rgb, source.stereo.right(0)
     assert np.abs(left.astype(int) - right).mean() > 2

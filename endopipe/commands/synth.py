@@ -15,6 +15,10 @@ if TYPE_CHECKING:
 #: --layout: endopipe's case folder, EndoNeRF's layout instead of its frames, or both (EndoNeRF's
 #: in the case's endonerf/ folder); a rectified Hamlyn sequence (hamlyn) or EDaM's copy (edam).
 LAYOUTS = ("endopipe", "endonerf", "both", "hamlyn", "edam", "c3vd", "scared")
+#: The layouts of laparoscopic data sets: their scene, unless --shape names one, is the cavity,
+#: whose walls (12-33 mm) lie at a laparoscope's working distance; a colon's near wall (8 mm)
+#: would put a third of the width out of a 5 mm rig's right eye.
+LAPAROSCOPIC_LAYOUTS = ("hamlyn", "scared")
 #: --stereo: the right eye's baseline, mm (Hamlyn's rig: about 5).
 STEREO_BASELINE_MM = 5.0
 
@@ -26,7 +30,7 @@ def synth_case(
     frames: int,
     width: int,
     height: int,
-    shape: str,
+    shape: str | None,
     lens: str,
     fov_diag: float | None,
     vignetting: float,
@@ -35,12 +39,15 @@ def synth_case(
     layout: str = "endopipe",
     stereo: bool = False,
 ) -> None:
-    """Validate the settings (one line naming the bad one), write the case, say what it is."""
+    """Validate the settings (one line naming the bad one), write the case, say what it is.
+    An unset `shape` is the layout's own scene (`LAPAROSCOPIC_LAYOUTS`)."""
     from pydantic import ValidationError
 
     from endopipe.pipeline.runner import ensure_writable
     from endopipe.synth import SynthConfig
 
+    if shape is None:
+        shape = "cavity" if layout in LAPAROSCOPIC_LAYOUTS else "colon"
     try:
         cfg = SynthConfig(
             seed=seed,
