@@ -68,8 +68,8 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, ner
             return kept
         return render_image(model, prior, k, c2w, colour=True)["rgb"]
 
-    if cfg.renderer == "field" or model.moves:
-        # A moving scene has no one surface to bake: each frame renders at its own time.
+    if cfg.renderer == "field" or model.field.dynamic:
+        # A dynamic field has no one surface to bake: each frame renders at its own time.
         position = {f: p for p, f in enumerate(getattr(model, "meta", {}).get("frame_ids", []))}
         if model.field.dynamic:
             coarse, fine = cfg.dynamic_samples

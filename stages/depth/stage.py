@@ -63,9 +63,9 @@ class Depth(Stage):
         sight = FieldSight.open(cfg, ingest, poses, centerline, nerf)
         renderer, k, c2w, bake_s = sight.render, sight.camera, sight.c2w, sight.bake_s
         heldout = set(getattr(sight.model, "meta", {}).get("heldout", []))
-        used = "field" if sight.model.moves else cfg.renderer
+        used = "field" if sight.model.field.dynamic else cfg.renderer
         if used != cfg.renderer:
-            ctx.log("renderer field: a moving scene renders each frame at its own time")
+            ctx.log("renderer field: a dynamic field renders each frame at its own time")
         beyond_lens = unseen_pixels(k, ingest)  # no ray, or outside the scope: no depth
         for sub in (DEPTH_DIR, OPACITY_DIR):
             (ctx.out / sub).mkdir()

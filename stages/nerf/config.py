@@ -147,16 +147,6 @@ class FieldConfig(_Section):
         description="Nodes along time of the space-time planes; 0: one per two frames, 4 to "
         "64 (a held-out frame then lies between nodes its neighbours fitted).",
     )
-    breathing: bool = Field(
-        False,
-        description="A lumen whose wall breathes under a moving camera: the field is one "
-        "canonical lumen, a point seen at time t read at its foot on the centre curve plus its "
-        "offset scaled by exp(-g(place, t)), g a table of breathing_knots places x time_nodes "
-        "times with zero mean over time (a tube prior only; the static field's grid).",
-    )
-    breathing_knots: int = Field(
-        4, ge=1, description="Places along the centre curve where the breathing is free."
-    )
     warp: bool | Literal["auto"] = Field(
         "auto",
         description="Warp the grid per axis: linear around the camera path, logarithmic "

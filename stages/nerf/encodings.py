@@ -3,10 +3,8 @@
 All take grid coordinates in [-1, 1]^3 (the scene box, see `scene.py`). The grid encodings share
 one interpolation kernel, `gather_interp`: a weighted sum of K table rows per point. Its forward is
 `F.embedding_bag` (rows are channels-last, so one point reads contiguous memory) and its backward
-an accumulating scatter into the table's gradient: the sample positions need no gradients here
-(normals come from finite differences), which keeps both passes cheap on a CPU. Only a breathing
-lumen's canonical points need them (`VMGrid.prepare(positional=True)`: the weights then carry
-gradients, and the backward reads the table rows once more).
+an accumulating scatter into the table's gradient: the sample positions never need gradients here
+(normals come from finite differences), which keeps both passes cheap on a CPU.
 """
 
 from __future__ import annotations
@@ -50,13 +48,7 @@ class _GatherInterp(torch.autograd.Function):
         # CPU: index_add_ 17 ms against the accumulating index_put_'s 28 for 200k rows of 32.)
         for k in range(idx.shape[1]):
             g.index_add_(0, idx[:, k], grad * w[:, k : k + 1])
-        gw = None
-        if ctx.needs_input_grad[2]:  # d out / d w[:, k] = the k-th corner's row
-            gw = torch.stack(
-                [(table.index_select(0, idx[:, k]) * grad).sum(-1) for k in range(idx.shape[1])],
-                -1,
-            )
-        return (None if direct else g), None, gw
+        return (None if direct else g), None, None
 
 
 def _zeroed_buffer(table: torch.Tensor) -> torch.Tensor:
@@ -72,9 +64,8 @@ def _zeroed_buffer(table: torch.Tensor) -> torch.Tensor:
 
 
 def gather_interp(table: torch.Tensor, idx: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-    """sum_k w[n, k] * table[idx[n, k]] -> (N, C); gradients flow to `table`, and to `w` when
-    it carries them (`VMGrid.prepare(positional=True)`)."""
-    return _GatherInterp.apply(table, idx, w.to(table.dtype))
+    """sum_k w[n, k] * table[idx[n, k]] -> (N, C); gradients flow to `table` only."""
+    return _GatherInterp.apply(table, idx, w.detach().to(table.dtype))
 
 
 class VMGrid(nn.Module):
@@ -119,13 +110,12 @@ class VMGrid(nn.Module):
             self._consts[key] = (a, b, c, res, ra, poff, loff, corner)
         return self._consts[key]
 
-    def prepare(self, x: torch.Tensor, positional: bool = False) -> tuple[torch.Tensor, ...]:
-        """Interpolation indices and weights of points x (N, 3) in [-1, 1]^3; `positional`:
-        the weights carry x's gradients (a breathing lumen's canonical points)."""
+    def prepare(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """Interpolation indices and weights of points x (N, 3) in [-1, 1]^3."""
         a, b, c, res, ra, poff, loff, corner = self._constants(x.device)
-        with torch.set_grad_enabled(positional and x.requires_grad):
+        with torch.no_grad():
             p = ((x + 1.0) * (0.5 * (res - 1))).clamp_(min=0.0).minimum(res - 1.0)
-            i = p.detach().floor().minimum(res - 2.0)
+            i = p.floor().minimum(res - 2.0)
             f = p - i
             i = i.long()
             fa, fb, fc = f[:, a], f[:, b], f[:, c]
@@ -202,13 +192,12 @@ class VMTimeGrid(VMGrid):
         self.times = int(times)
         self.change = nn.Parameter(torch.zeros(self.times * self._line_rows(), channels))
 
-    def prepare(self, x: torch.Tensor, positional: bool = False) -> tuple[torch.Tensor, ...]:
-        """As VMGrid's (never `positional`: a breathing lumen's field is static), and where
-        the change is read. Points all at one time (a frame rendered at its own) read the lines
-        sliced at that time (`sliced`): `cidx` is None and `cw` the time. Otherwise the
-        change's (w, time) corners and weights. (Slicing at each of a training batch's frames
-        instead made a step slower: 221 ms against 194, three runs of 60 steps each on the
-        cutting clip, scripts/bench_nerf_step.py.)"""
+    def prepare(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """As VMGrid's, and where the change is read. Points all at one time (a frame rendered
+        at its own) read the lines sliced at that time (`sliced`): `cidx` is None and `cw` the
+        time. Otherwise the change's (w, time) corners and weights. (Slicing at each of a
+        training batch's frames instead made a step slower: 221 ms against 194, three runs
+        of 60 steps each on the cutting clip, scripts/bench_nerf_step.py.)"""
         pidx, pw, lidx, lw = super().prepare(x[:, :3])
         t = x[:, 3]
         if x.shape[0] and bool((t == t[0]).all()):

@@ -160,8 +160,6 @@ class TensorfField(RadianceField):
         self.color = _mlp([t.appearance_dim + self.dir_dim, h, h, 3])
         self.register_buffer("res_now", torch.tensor(res), persistent=True)
         self.deferred = t.composite_features
-        # a breathing lumen's points move with its table: their gradients reach it
-        self.positional = bool(cfg.breathing)
 
     def _res(self, longest: int) -> tuple[int, int, int]:
         cell = max(self.extent) / (longest - 1)
@@ -184,14 +182,13 @@ class TensorfField(RadianceField):
         return 2.0 / (max(self.density_grid.res) - 1)
 
     def _raw(self, x: torch.Tensor) -> torch.Tensor:
-        return self.density_grid(x, self.density_grid.prepare(x, self.positional)).sum(-1)
+        return self.density_grid(x).sum(-1)
 
     def density(self, x: torch.Tensor) -> torch.Tensor:
         return self._activate(self._raw(x), x)
 
     def forward(self, x: torch.Tensor, d: torch.Tensor | None = None):
-        # both grids share their resolution
-        prep = self.density_grid.prepare(x, self.positional)
+        prep = self.density_grid.prepare(x)  # both grids share their resolution
         sigma = self._activate(self.density_grid(x, prep).sum(-1), x)
         f = self.app_grid(x, prep)
         if self.deferred:

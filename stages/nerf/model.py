@@ -26,7 +26,6 @@ from contextlib import contextmanager
 import torch
 from torch import nn
 
-from endopipe.stages.nerf.breathing import LumenBreathing
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.field import RadianceField, make_field
 from endopipe.stages.nerf.sampling import coarse_then_fine, composite, spaced, two_pass
@@ -48,25 +47,11 @@ NEW_KEYS = (
 
 
 class NerfModel(nn.Module):
-    """`curve`: the lumen's centre curve in scene units, for a breathing lumen
-    (`field.breathing`; a saved model's is in its state dict)."""
-
-    def __init__(
-        self,
-        cfg: NerfConfig,
-        box: SceneBox,
-        n_frames: int,
-        gain: float = 1.0,
-        curve: torch.Tensor | None = None,
-    ) -> None:
+    def __init__(self, cfg: NerfConfig, box: SceneBox, n_frames: int, gain: float = 1.0) -> None:
         super().__init__()
         self.cfg = cfg
         self.box = box
         self.field: RadianceField = make_field(cfg.field, tuple(box.extent))
-        self.breathing: LumenBreathing | None = None
-        if cfg.field.breathing and curve is not None:
-            times = cfg.field.time_nodes or 1
-            self.breathing = LumenBreathing(curve, cfg.field.breathing_knots, times)
         self.log_gain = nn.Parameter(torch.tensor(math.log(gain)), requires_grad=True)
         amb = max(cfg.shading.ambient, 1e-6)
         self.ambient_raw = nn.Parameter(torch.tensor(math.log(math.expm1(amb))))
@@ -106,8 +91,6 @@ class NerfModel(nn.Module):
     # --- parameters -------------------------------------------------------------------------
     def param_groups(self, lr_grid: float, lr_mlp: float) -> list[dict]:
         groups = self.field.param_groups(lr_grid, lr_mlp)
-        if self.breathing is not None:
-            groups.append({"params": [self.breathing.table], "lr": lr_mlp, "name": "breathing"})
         sc = self.cfg.shading
         shade = [self.ambient_raw]
         if sc.learn_gain:
@@ -143,33 +126,21 @@ class NerfModel(nn.Module):
             return out
 
     # --- geometry helpers ---------------------------------------------------------------------
-    @property
-    def moves(self) -> bool:
-        """Whether the scene differs between frames (a dynamic field, a breathing lumen): each
-        frame is then rendered at its own time, never from one baked surface."""
-        return self.field.dynamic or self.breathing is not None
-
-    def point_times(self, n: int) -> torch.Tensor:
-        """The time of each of `n` points: the rays' being rendered (points ray-major, each
-        ray's together), else the one set by `at_frame`, else the first frame's."""
-        t = self._time if self._time is not None else self.frame_time[:1]
-        if t.numel() == 1:
-            return t.reshape(1).expand(n)
-        if n % t.shape[0]:
-            raise ValueError("points of a moving scene must be ray-major, whole rays")
-        return t.repeat_interleave(n // t.shape[0])
-
     def to_grid(self, x: torch.Tensor) -> torch.Tensor:
-        """Grid coordinates of scene points (a breathing lumen's read at their canonical
-        place); a dynamic field's get their time (`point_times`) as a fourth column."""
-        if self.breathing is not None:
-            flat = x.reshape(-1, 3)
-            x = self.breathing.canonical(flat, self.point_times(flat.shape[0])).reshape(x.shape)
+        """Grid coordinates of scene points; a dynamic field's get their time as a fourth
+        column: the rays' being rendered (points ray-major, each ray's together), else the one
+        set by `at_frame`, else the first frame's."""
         g = self.box.to_grid(x)
         if not self.field.dynamic:
             return g
         flat = g.reshape(-1, 3)
-        tt = self.point_times(flat.shape[0])
+        t = self._time if self._time is not None else self.frame_time[:1]
+        if t.numel() == 1:
+            tt = t.reshape(1).expand(flat.shape[0])
+        else:
+            if flat.shape[0] % t.shape[0]:
+                raise ValueError("points of a dynamic field must be ray-major, whole rays")
+            tt = t.repeat_interleave(flat.shape[0] // t.shape[0])
         return torch.cat([flat, tt[:, None].to(flat.dtype)], -1).reshape(*g.shape[:-1], 4)
 
     def set_frame_times(self, times: list[float]) -> None:
@@ -267,7 +238,7 @@ class NerfModel(nn.Module):
         """Render rays (scene frame). Returns depth (z, scene units), opacity, and when `colour`:
         rgb (display-encoded), plus normal/cos when computed, the samples t and weights."""
         before = self._time
-        if self.moves and frame is not None:
+        if self.field.dynamic and frame is not None:
             self._time = self.frame_time[frame]
         try:
             return self._render_rays(

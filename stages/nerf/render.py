@@ -60,8 +60,7 @@ def load_model(folder: Path | str, device: str | torch.device = "cpu") -> NerfMo
         path = path / MODEL_FILE
     blob = torch.load(path, map_location="cpu", weights_only=False)
     cfg = NerfConfig.model_validate(blob["config"])
-    curve = blob["state"].get("breathing.curve")
-    model = NerfModel(cfg, SceneBox.from_state(blob["box"]), blob["n_frames"], curve=curve)
+    model = NerfModel(cfg, SceneBox.from_state(blob["box"]), blob["n_frames"])
     model.load_state_dict(blob["state"])
     model.meta = blob.get("meta", {})  # type: ignore[attr-defined]
     return model.to(device).eval()

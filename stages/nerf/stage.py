@@ -345,29 +345,6 @@ def choose_dynamic(cfg: NerfConfig, poses, n_frames: int, log) -> NerfConfig:
     return cfg.model_copy(update={"field": field, "loss": loss})
 
 
-def choose_breathing(cfg: NerfConfig, prior, n_frames: int, log) -> NerfConfig:
-    """field.breathing: kept for a tube prior and a static field, with its time nodes (as a
-    dynamic field's: one per two frames); off, saying why, otherwise."""
-    if not cfg.field.breathing:
-        return cfg
-    why = None
-    if getattr(prior, "kind", None) != "tube":
-        why = f"the lumen prior is {getattr(prior, 'kind', 'none')}, not a tube"
-    elif cfg.field.dynamic is True:
-        why = "the field is dynamic already"
-    elif cfg.field.encoding != "tensorf":
-        why = f"the {cfg.field.encoding} encoding passes no gradient to its points"
-    if why is not None:
-        log(f"field.breathing off: {why}")
-        return cfg.model_copy(update={"field": cfg.field.model_copy(update={"breathing": False})})
-    nodes = cfg.field.time_nodes or int(np.clip(round(n_frames / 2), 4, 64))
-    log(
-        f"breathing lumen: the wall scaled about the centre curve at "
-        f"{cfg.field.breathing_knots} places x {nodes} times"
-    )
-    return cfg.model_copy(update={"field": cfg.field.model_copy(update={"time_nodes": nodes})})
-
-
 def frame_times(ingest, ids: list[int]) -> list[float]:
     """Each frame's time: its time in the video, else its position in the input."""
     frames = [ingest.frame(i) for i in ids]
@@ -417,7 +394,6 @@ def set_up_training(
     ids, k, images, masks, c2w = build_frames(ingest, poses, device)
     cfg = still_camera_settings(cfg, poses, log)
     cfg = choose_dynamic(cfg, poses, len(ids), log)
-    cfg = choose_breathing(cfg, prior, len(ids), log)
     cfg = choose_geometry(cfg, prior, log)
     box = fit_box(c2w, k, images.shape[1:3], prior, cfg, poses.points(), log)
     cfg = regularise_far_view(cfg, box, log)
@@ -486,10 +462,6 @@ class Nerf(Stage):
         with ctx.progress("nerf", total=cfg.train.steps) as advance:
             trainer.fit(advance)
         budget_stopped = trainer.step_i < cfg.train.steps
-        breathing = None
-        if trainer.model.breathing is not None:
-            breathing = round(trainer.model.breathing.amplitude(), 5)
-            ctx.log(f"breathing lumen: the radius moved up to {100 * breathing:.1f}% from its mean")
         if budget_stopped:
             ctx.log(
                 f"stopped by nerf.train.time_budget_s ({cfg.train.time_budget_s:g} s) at step "
@@ -541,7 +513,6 @@ class Nerf(Stage):
             core_fraction=trainer.core_fraction,
             geometry=run.cfg.field.geometry,
             time_nodes=run.cfg.field.time_nodes if run.cfg.field.dynamic is True else None,
-            breathing_amplitude=breathing,
         )
 
 

@@ -62,6 +62,3 @@ class NerfSummary(Summary):
     geometry: str | None = None  # density or sdf, as field.geometry resolved for this case
     #: a dynamic field (field.dynamic resolved on): its nodes along time; None: static
     time_nodes: int | None = None
-    #: a breathing lumen (field.breathing): the largest relative radius change from the mean
-    #: its table reached; None: not breathing
-    breathing_amplitude: float | None = None

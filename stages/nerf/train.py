@@ -75,13 +75,6 @@ def auto_threads(window_s: float = 0.5) -> int:
     return int(min(cores, max(1, round(cores - max(others, 0.0)))))
 
 
-def breathing_curve(prior, box: SceneBox) -> torch.Tensor | None:
-    """The tube prior's centre curve in scene units (a breathing lumen scales about it)."""
-    if getattr(prior, "kind", None) != "tube":
-        return None
-    return torch.as_tensor(box.world_to_scene_np(prior.points), dtype=torch.float32)
-
-
 def initial_gain(frames: FrameSet, train: list[int], pb: PriorBounds, gamma: float, gen) -> float:
     """Light gain so that a mid-grey albedo at the prior's wall matches the median pixel."""
     sampler = RaySampler(frames, train, 4096, 2, 0.0, gen)
@@ -125,8 +118,7 @@ class Trainer:
         # The core L_prior keeps empty, no wider than the SfM points leave it.
         self.core_fraction = min(cfg.loss.core_fraction, prior.core_limit)
         gain = initial_gain(frames, train, self.pb, cfg.shading.gamma, self.gen)
-        curve = breathing_curve(prior, box) if cfg.field.breathing else None
-        self.model = NerfModel(cfg, box, frames.n, gain=gain, curve=curve).to(self.device)
+        self.model = NerfModel(cfg, box, frames.n, gain=gain).to(self.device)
         self.model.set_trained_frames(train)
         if self.model.field.is_sdf:
             cams = frames.c2w[train, :3, 3]
@@ -350,8 +342,6 @@ class Trainer:
         extra = self.model.field.extra_loss()
         if extra is not None:
             loss = loss + extra
-        if self.model.breathing is not None and cfg.field.change_weight > 0:
-            loss = loss + cfg.field.change_weight * self.model.breathing.smoothness()
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
         self.opt.step()
