@@ -10,7 +10,7 @@ import torch
 from endopipe.stages.camera import Camera
 from endopipe.stages.centerline.prior import TubePrior
 from endopipe.stages.nerf.baked import BakedSurface
-from endopipe.stages.nerf.render import weight_spread
+from endopipe.stages.nerf.render import weight_median_and_spread, weight_spread
 from endopipe.stages.nerf.sampling import composite, weight_quantiles
 
 
@@ -67,3 +67,19 @@ def test_haze_has_a_wide_weight_spread_and_a_wall_a_narrow_one() -> None:
     assert w.sum(1).min() > 0.9  # both opaque: opacity cannot tell them apart
     spread = weight_spread({"t": t, "weights": w}, far)
     assert spread[0] < 0.02 and spread[1] > 0.3
+
+
+def test_a_rays_median_depth_stays_on_its_wall_where_haze_pulls_the_expected_depth() -> None:
+    """depth.field_depth: a wall at z 10 behind faint haze from z 2 (a fifth of the weight):
+    the expected depth lands in front of the wall, the median on it."""
+    t = torch.linspace(1.0, 14.0, 521)[None].contiguous()
+    sigma = ((t >= 2.0) & (t < 10.0)).float() * 0.03 + ((t >= 10.0) & (t < 10.2)).float() * 30.0
+    far = torch.full((1,), 14.0)
+    w, _ = composite(t, sigma, torch.ones(1), far)
+    haze = float(w[0, t[0] < 10.0].sum())
+    assert 0.15 < haze < 0.25 and w.sum() > 0.95
+    expected = float((w * t).sum() / w.sum())
+    median, spread = weight_median_and_spread({"t": t, "weights": w}, far)
+    assert abs(float(median[0]) - 10.1) < 0.15  # on the wall
+    assert expected < 9.3  # pulled 8% of the depth towards the camera
+    assert float(spread[0]) < 0.15  # found: a depth the depth stage keeps

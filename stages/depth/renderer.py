@@ -19,6 +19,9 @@ from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
 
+#: depth.field_depth -> the volume renderer's map that gives it (`render_image`)
+DEPTH_OF = {"median": "median", "expected": "depth"}
+
 #: (intrinsics, c2w, frame index, colour) -> {depth, opacity, hazy[, rgb]}
 Render = Callable[[Camera, np.ndarray, int, bool], dict[str, Any]]
 
@@ -88,7 +91,7 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, ner
             found, out["hazy"] = surface_found(
                 out["opacity"], out["spread"], cfg.min_opacity, cfg.max_spread
             )
-            out["depth"] = np.where(found, out["depth"], 0.0)
+            out["depth"] = np.where(found, out[DEPTH_OF[cfg.field_depth]], 0.0)
             return out
 
         return render_field

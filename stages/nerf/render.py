@@ -66,14 +66,22 @@ def load_model(folder: Path | str, device: str | torch.device = "cpu") -> NerfMo
     return model.to(device).eval()
 
 
-def weight_spread(out: dict[str, torch.Tensor], far: torch.Tensor) -> torch.Tensor:
-    """How far from one surface each rendered ray is: the interquartile range of its weight
-    over its median depth. A surface puts the weight in a thin shell (C3VD's far lumen: 4% of
-    the depth, 8% at the 90th percentile); haze in front of a wall or a ray grazing a fold's
-    rim spreads it (rays through holes in C3VD's baked wall: up to 30%), and the expected
-    depth there is a blend of the haze and the wall, nearer than either."""
+def weight_median_and_spread(
+    out: dict[str, torch.Tensor], far: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each rendered ray's median depth (half its weight lies nearer; scene z-depth) and how
+    far from one surface it is: the interquartile range of its weight over that median. A
+    surface puts the weight in a thin shell (C3VD's far lumen: 4% of the depth, 8% at the
+    90th percentile); haze in front of a wall or a ray grazing a fold's rim spreads it (rays
+    through holes in C3VD's baked wall: up to 30%), and the expected depth there is a blend of
+    the haze and the wall, nearer than either; the median stays with the heavier of the two."""
     q = weight_quantiles(out["t"], out["weights"], far, (0.25, 0.5, 0.75))
-    return (q[:, 2] - q[:, 0]) / q[:, 1].clamp_min(1e-9)
+    return q[:, 1], (q[:, 2] - q[:, 0]) / q[:, 1].clamp_min(1e-9)
+
+
+def weight_spread(out: dict[str, torch.Tensor], far: torch.Tensor) -> torch.Tensor:
+    """The spread of `weight_median_and_spread` alone."""
+    return weight_median_and_spread(out, far)[1]
 
 
 def surface_found(
@@ -99,10 +107,11 @@ def render_image(
     colour: bool = True,
     frame: int | None = None,
 ) -> dict[str, np.ndarray]:
-    """Render one camera (world c2w, OpenCV). Returns float32 arrays: depth (H, W) z-depth in
-    world units (0 where the ray stays transparent), opacity (H, W), spread (H, W; see
-    `weight_spread`), and rgb (H, W, 3) in [0, 1] (display-encoded) when `colour`. `frame`
-    picks a training frame's exposure."""
+    """Render one camera (world c2w, OpenCV). Returns float32 arrays: depth (H, W), the
+    expected z-depth in world units (0 where the ray stays transparent), median (H, W), the
+    weights' median z-depth (0 there too), opacity (H, W), spread (H, W; see
+    `weight_median_and_spread`), and rgb (H, W, 3) in [0, 1] (display-encoded) when `colour`.
+    `frame` picks a training frame's exposure."""
     h = height or intrinsics.height
     w = width or intrinsics.width
     k = intrinsics if (w, h) == (intrinsics.width, intrinsics.height) else intrinsics.scaled(w, h)
@@ -117,7 +126,7 @@ def render_image(
     )
     o, d = pixel_rays(k, c2w_s, uu.reshape(-1), vv.reshape(-1))
     chunk = chunk or model.cfg.sampling.chunk
-    depth, spread, opacity, rgb = [], [], [], []
+    depth, median, spread, opacity, rgb = [], [], [], [], []
     fr = None if frame is None else torch.tensor([frame], device=dev)
     for a in range(0, o.shape[0], chunk):
         oc, dc = o[a : a + chunk], d[a : a + chunk]
@@ -126,15 +135,20 @@ def render_image(
             oc, dc, near, far, colour=colour, frame=None if fr is None else fr.expand(len(oc))
         )
         depth.append(out["depth"])
-        spread.append(weight_spread(out, far))
+        mid, spread_of = weight_median_and_spread(out, far)
+        median.append(mid)
+        spread.append(spread_of)
         opacity.append(out["opacity"])
         if colour:
             rgb.append(out["rgb"].clamp(0, 1))
     op = torch.cat(opacity).view(h, w)
     z = torch.cat(depth).view(h, w) * model.box.scale
     z = torch.where(op > 1e-3, z, torch.zeros_like(z))
+    zm = torch.cat(median).view(h, w) * model.box.scale
+    zm = torch.where(op > 1e-3, zm, torch.zeros_like(zm))
     result = {
         "depth": z.float().cpu().numpy(),
+        "median": zm.float().cpu().numpy(),
         "spread": torch.cat(spread).view(h, w).float().cpu().numpy(),
         "opacity": op.float().cpu().numpy(),
     }
