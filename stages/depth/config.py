@@ -17,8 +17,9 @@ class DepthConfig(StageConfig):
     )
     field_depth: Literal["median", "expected"] = Field(
         "median",
-        description="A volume-rendered ray's depth (renderer field, and every frame of a field "
-        "that changes with time): median, where half its weight lies nearer; expected, its "
+        description="A volume-rendered ray's depth (renderer field, every frame of a field that "
+        "changes with time, the rays a baked surface misses when the field answers them): "
+        "median, where half its weight lies nearer; expected, its "
         "weights' mean, which haze in front of or behind the wall pulls off it. The pulled "
         "wall's tissue, median-scaled: 0.0585 against 0.0648 on the same pixels (every 10th "
         "frame); the breathing colon with renderer field: 0.0400 against 0.0411.",

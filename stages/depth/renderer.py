@@ -116,7 +116,9 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, ner
     )
 
     def render(k, c2w, i, colour):
-        out = baked.render_depth(k, c2w, cfg.min_opacity, cfg.fill, cfg.max_spread)
+        out = baked.render_depth(
+            k, c2w, cfg.min_opacity, cfg.fill, cfg.max_spread, cfg.field_depth == "median"
+        )
         if colour:  # colour needs the albedo field: only for held-out frames
             out["rgb"] = colour_of(k, c2w, i)
         return out

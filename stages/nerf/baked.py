@@ -96,12 +96,14 @@ class BakedSurface:
         min_opacity: float = 0.5,
         fill: bool = False,
         max_spread: float | None = None,
+        median: bool = True,
     ) -> dict[str, np.ndarray]:
         """z-depth (H, W) in world units, opacity and `hazy` (the rays left unknown for their
         spread). A ray that meets no baked surface (it runs past the baked reach, e.g. down the
-        lumen, or through a hole in the iso-surface) is volume-rendered by the field itself;
-        where that finds no surface (opacity under `min_opacity`) or no one surface (weight
-        spread over `max_spread`, see `render.weight_spread`), the depth is 0, unknown. `fill`
+        lumen, or through a hole in the iso-surface) is volume-rendered by the field itself
+        (its depth the weights' median, or with `median` False their mean); where that finds
+        no surface (opacity under `min_opacity`) or no one surface (weight spread over
+        `max_spread`, see `render.weight_median_and_spread`), the depth is 0, unknown. `fill`
         instead gives those rays the depth where they leave the prior's wall (a guess from the
         prior, not an observation; nothing without a wall)."""
         from endopipe.stages.nerf.render import surface_found
@@ -128,7 +130,7 @@ class BakedSurface:
             if self.far.faint == "field":
                 exact[pix[~settled]] = True
         if self.model is not None and exact.any():
-            z, op, spread = self._render_missed(k, c2w, lens[exact])
+            z, op, spread = self._render_missed(k, c2w, lens[exact], median)
             opacity[exact] = op
             found, hazy[exact] = surface_found(op, spread, min_opacity, max_spread)
             depth[exact] = np.where(found, z, 0.0)
@@ -146,15 +148,15 @@ class BakedSurface:
         return images
 
     def _render_missed(
-        self, k: Camera, c2w: np.ndarray, pixels: np.ndarray
+        self, k: Camera, c2w: np.ndarray, pixels: np.ndarray, median: bool = True
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Expected z-depth (world), opacity and weight spread of the field along the rays of
-        `pixels`."""
+        """z-depth (world: the weights' median, else their mean), opacity and weight spread of
+        the field along the rays of `pixels`."""
         import torch
 
         from endopipe.stages.camera import direction_table, pixel_rays
         from endopipe.stages.nerf.bounds import scene_bounds
-        from endopipe.stages.nerf.render import weight_spread
+        from endopipe.stages.nerf.render import weight_median_and_spread
 
         model = self.model
         dev = model.log_gain.device
@@ -171,8 +173,9 @@ class BakedSurface:
                 o, d = pixel_rays(k, c2w_s, u[a : a + chunk], v[a : a + chunk], table)
                 near, far = scene_bounds(model, self.prior, o, d)
                 out = model.render_rays(o, d, near, far, colour=False)
-                zs.append(out["depth"] * model.box.scale)
-                spreads.append(weight_spread(out, far))
+                mid, spread = weight_median_and_spread(out, far)
+                zs.append((mid if median else out["depth"]) * model.box.scale)
+                spreads.append(spread)
                 ops.append(out["opacity"])
         return tuple(torch.cat(a).float().cpu().numpy() for a in (zs, ops, spreads))
 
