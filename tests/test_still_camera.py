@@ -67,7 +67,7 @@ def test_its_field_changes_with_time_and_its_depth_is_one_viewpoints(still_case:
     assert m is not None and m.median_scaled is not None and m.baselines is not None
     ours = m.median_scaled.abs_rel
     guess = m.baselines["brightness"].median_scaled.abs_rel
-    assert ours < 0.8 * guess, (ours, guess)  # measured 0.055 against 0.091, on tissue
+    assert ours < 0.8 * guess, (ours, guess)  # measured 0.053 against 0.091, on tissue
     assert m.neighbour_average and m.neighbour_average["psnr"] > 0
 
 
