@@ -59,7 +59,9 @@ def test_the_tool_masks_leave_the_usable_pixels(still_case: Path):
 
 
 def test_its_field_changes_with_time_and_its_depth_is_one_viewpoints(still_case: Path):
-    assert NerfView(still_case / "04_nerf").summary.time_nodes is not None
+    nerf = NerfView(still_case / "04_nerf").summary
+    assert nerf.time_nodes is not None
+    assert nerf.depth_supervised is False  # nothing measured its depth: read at the median
     depth = DepthView(still_case / "05_depth")
     assert depth.summary.one_viewpoint
     assert depth.summary.seen_again_share == 0.0  # no pixel was seen from two places

@@ -83,3 +83,21 @@ def test_a_rays_median_depth_stays_on_its_wall_where_haze_pulls_the_expected_dep
     assert abs(float(median[0]) - 10.1) < 0.15  # on the wall
     assert expected < 9.3  # pulled 8% of the depth towards the camera
     assert float(spread[0]) < 0.15  # found: a depth the depth stage keeps
+
+
+def test_the_depth_read_out_follows_what_trained_the_field() -> None:
+    """depth.field_depth auto: the mean where measured depth trained it (it fits that mean),
+    the median where nothing did; a nerf folder that did not record it keeps the mean."""
+    from types import SimpleNamespace
+
+    from endopipe.stages.depth.config import DepthConfig
+    from endopipe.stages.depth.renderer import field_depth
+
+    def nerf(supervised: bool | None) -> SimpleNamespace:
+        return SimpleNamespace(summary=SimpleNamespace(depth_supervised=supervised))
+
+    auto = DepthConfig()
+    assert field_depth(auto, nerf(False)) == "median"
+    assert field_depth(auto, nerf(True)) == "expected"
+    assert field_depth(auto, nerf(None)) == "expected"
+    assert field_depth(DepthConfig(field_depth="median"), nerf(True)) == "median"

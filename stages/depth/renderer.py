@@ -21,6 +21,21 @@ from endopipe.stages.poses.view import PosesView
 
 #: depth.field_depth -> the volume renderer's map that gives it (`render_image`)
 DEPTH_OF = {"median": "median", "expected": "depth"}
+#: ... and the log's words for it
+READ_OUT_WHY = {
+    "median": "the median of its weights (depth.field_depth; no measured depth trained the "
+    "field, so haze in front of the wall would pull its mean off it)",
+    "expected": "the mean of its weights (depth.field_depth), which measured depth trained",
+}
+
+
+def field_depth(cfg: DepthConfig, nerf: NerfView) -> str:
+    """depth.field_depth resolved: auto is the expected depth where measured depth trained
+    the field (it fits that), the median where nothing did (or a field that did not say)."""
+    if cfg.field_depth != "auto":
+        return cfg.field_depth
+    return "median" if nerf.summary.depth_supervised is False else "expected"
+
 
 #: (intrinsics, c2w, frame index, colour) -> {depth, opacity, hazy[, rgb]}
 Render = Callable[[Camera, np.ndarray, int, bool], dict[str, Any]]
@@ -65,6 +80,8 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, ner
     of the held-out frame when it kept one (the field is the same: no second render)."""
     from endopipe.stages.nerf.render import render_image, surface_found
 
+    read_out = field_depth(cfg, nerf)
+
     def colour_of(k, c2w, i) -> np.ndarray:
         kept = nerf.heldout_rgb(i)
         if kept is not None and kept.shape[:2] == (k.height, k.width):
@@ -91,7 +108,7 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, ner
             found, out["hazy"] = surface_found(
                 out["opacity"], out["spread"], cfg.min_opacity, cfg.max_spread
             )
-            out["depth"] = np.where(found, out[DEPTH_OF[cfg.field_depth]], 0.0)
+            out["depth"] = np.where(found, out[DEPTH_OF[read_out]], 0.0)
             return out
 
         return render_field
@@ -117,7 +134,7 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, ner
 
     def render(k, c2w, i, colour):
         out = baked.render_depth(
-            k, c2w, cfg.min_opacity, cfg.fill, cfg.max_spread, cfg.field_depth == "median"
+            k, c2w, cfg.min_opacity, cfg.fill, cfg.max_spread, read_out == "median"
         )
         if colour:  # colour needs the albedo field: only for held-out frames
             out["rgb"] = colour_of(k, c2w, i)

@@ -28,7 +28,7 @@ from endopipe.stages.depth.evaluate import (
 )
 from endopipe.stages.depth.metrics_file import DepthMetrics
 from endopipe.stages.depth.preview import write_preview
-from endopipe.stages.depth.renderer import FieldSight
+from endopipe.stages.depth.renderer import READ_OUT_WHY, FieldSight, field_depth
 from endopipe.stages.depth.summary import DepthSummary
 from endopipe.stages.depth.support import write_support
 from endopipe.stages.depth.view import DEPTH_DIR, OPACITY_DIR, PREVIEW_FILE, DepthView, frame_file
@@ -67,6 +67,8 @@ class Depth(Stage):
         used = "field" if sight.model.field.dynamic else cfg.renderer
         if used != cfg.renderer:
             ctx.log("renderer field: a dynamic field renders each frame at its own time")
+        if used == "field":
+            ctx.log(f"each ray's depth: {READ_OUT_WHY[field_depth(cfg, nerf)]}")
         beyond_lens = unseen_pixels(k, ingest)  # no ray, or outside the scope: no depth
         for sub in (DEPTH_DIR, OPACITY_DIR):
             (ctx.out / sub).mkdir()

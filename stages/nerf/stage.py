@@ -513,6 +513,7 @@ class Nerf(Stage):
             core_fraction=trainer.core_fraction,
             geometry=run.cfg.field.geometry,
             time_nodes=run.cfg.field.time_nodes if run.cfg.field.dynamic is True else None,
+            depth_supervised=trainer.depth_supervised,
         )
 
 

@@ -62,3 +62,6 @@ class NerfSummary(Summary):
     geometry: str | None = None  # density or sdf, as field.geometry resolved for this case
     #: a dynamic field (field.dynamic resolved on): its nodes along time; None: static
     time_nodes: int | None = None
+    #: whether measured depth trained the field (SfM points, stereo, given depth, a depth prior):
+    #: its expected depth is then what those rays fit (depth.field_depth auto); None: not recorded
+    depth_supervised: bool | None = None

@@ -186,6 +186,20 @@ class Trainer:
     def ckpt_path(self) -> Path:
         return self.out_dir / CHECKPOINT
 
+    @property
+    def depth_supervised(self) -> bool:
+        """Whether any measured depth trains the field (SfM points, stereo or given depth, a
+        depth prior): those rays fit its expected depth."""
+        lc = self.cfg.loss
+        return any(
+            rays is not None and len(rays) > 0 and weight > 0
+            for rays, weight in (
+                (self.sparse, lc.sparse_weight),
+                (self.stereo, lc.stereo_weight),
+                (self.prior_depth, self.prior_depth.weight if self.prior_depth else 0.0),
+            )
+        )
+
     def save_checkpoint(self) -> None:
         state = {
             "step": self.step_i,
