@@ -47,9 +47,9 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    # 14: a volume-rendered ray's depth is its weights' median; 13: tools left out of the
-    # scores, depth from shading scored; 12: says when the truth also supervised; 11: the depth
-    # prior scored; 10: stereo
+    # 14: a volume-rendered ray's depth is its weights' median where no measured depth trained
+    # the field; 13: tools left out of the scores, depth from shading scored; 12: says when the
+    # truth also supervised; 11: the depth prior scored; 10: stereo
     version = 14
     Config = DepthConfig
     Summary = DepthSummary

@@ -96,12 +96,12 @@ class BakedSurface:
         min_opacity: float = 0.5,
         fill: bool = False,
         max_spread: float | None = None,
-        median: bool = True,
+        median: bool = False,
     ) -> dict[str, np.ndarray]:
         """z-depth (H, W) in world units, opacity and `hazy` (the rays left unknown for their
         spread). A ray that meets no baked surface (it runs past the baked reach, e.g. down the
         lumen, or through a hole in the iso-surface) is volume-rendered by the field itself
-        (its depth the weights' median, or with `median` False their mean); where that finds
+        (its depth the weights' mean, or with `median` their median); where that finds
         no surface (opacity under `min_opacity`) or no one surface (weight spread over
         `max_spread`, see `render.weight_median_and_spread`), the depth is 0, unknown. `fill`
         instead gives those rays the depth where they leave the prior's wall (a guess from the
@@ -148,10 +148,10 @@ class BakedSurface:
         return images
 
     def _render_missed(
-        self, k: Camera, c2w: np.ndarray, pixels: np.ndarray, median: bool = True
+        self, k: Camera, c2w: np.ndarray, pixels: np.ndarray, median: bool = False
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """z-depth (world: the weights' median, else their mean), opacity and weight spread of
-        the field along the rays of `pixels`."""
+        """z-depth (world: the weights' mean, or with `median` their median), opacity and
+        weight spread of the field along the rays of `pixels`."""
         import torch
 
         from endopipe.stages.camera import direction_table, pixel_rays
