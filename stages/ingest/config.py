@@ -232,6 +232,15 @@ class StereoConfig(BaseModel):
         description="auto: match when the input comes with right views and a baseline (Hamlyn's "
         "image02/); on: the same, and an input without them is an error; off: never.",
     )
+    check: bool = Field(
+        True,
+        description="Check the rig against its images before matching (features matched "
+        "between the eyes): pair each left frame with the right frame of the same moment and "
+        "shift the right image by the rows the rectification leaves (ingest/rig_check.py).",
+    )
+    max_offset: int = Field(
+        2, ge=0, le=5, description="The check tries right frames up to this many away."
+    )
     min_depth_mm: float = Field(
         4.0,
         gt=0,

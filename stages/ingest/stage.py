@@ -41,7 +41,9 @@ class Ingest(Stage):
 
     name = "ingest"
     needs = ()
-    version = 7  # 7: a data set's metric depth in stereo/; 6: the user's depth prior
+    # 8: a rig checked against its images (pairing, rows); 7: a data set's metric depth in
+    # stereo/; 6: the user's depth prior
+    version = 8
     Config = IngestConfig
     Summary = IngestSummary
     View = IngestView
@@ -66,6 +68,9 @@ class Ingest(Stage):
         tools = FrameTools(source.tool_masks, cfg.tools)
         intrinsics = source_intrinsics(source, selection.source_size, size)
         stereo = FrameStereo(source.stereo, intrinsics, cfg.stereo, source.given_depth)
+        rig = stereo.check([f.source_index for f in frames], images)
+        if rig is not None:
+            ctx.log(rig.said)
         prior = FramePrior(source.depth_prior, selection.source_size)
         prior_frames = 0
         if tools.active:
@@ -162,6 +167,7 @@ class Ingest(Stage):
             stereo_baseline_mm=stereo.baseline_mm if stereo.active else None,
             stereo_coverage=stereo_shares if stereo.active else None,
             stereo_mean_coverage=mean_share(stereo_shares) if stereo.active else None,
+            stereo_check=rig.said if rig is not None else None,
             depth_prior=str(source.depth_prior.folder) if source.depth_prior else None,
             depth_prior_frames=prior_frames if prior.active else None,
             has_intrinsics=intrinsics is not None,
@@ -191,7 +197,9 @@ def stereo_info(stereo: FrameStereo) -> StereoInfo | None:
     """frames.json's account of where its stereo/ depth came from (a rig, or the data set)."""
     if not stereo.active:
         return None
-    return StereoInfo(source=stereo.source, baseline_mm=stereo.baseline_mm, matcher=stereo.how)
+    return StereoInfo(
+        source=stereo.source, baseline_mm=stereo.baseline_mm, matcher=stereo.how, rig=stereo.rig
+    )
 
 
 def mean_share(shares: list[float | None]) -> float | None:

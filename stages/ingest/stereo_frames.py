@@ -16,6 +16,7 @@ import numpy as np
 from endopipe.pipeline.errors import InputError
 from endopipe.stages.camera import Camera
 from endopipe.stages.ingest.config import StereoConfig
+from endopipe.stages.ingest.rig_check import RigCheck, check_rig, shifted_rows
 from endopipe.stages.ingest.selection import resize
 from endopipe.stages.ingest.stereo import match_depth
 from endopipe.stages.io.given_depth import GivenDepth
@@ -39,6 +40,7 @@ class FrameStereo:
         self.pairs, self.camera, self.cfg = pairs, camera, cfg
         self.given = given if pairs is None else None  # a rig is matched; its depth is ours
         self.skipped = self._why_not()
+        self.rig: RigCheck | None = None  # what check() found, when it ran
         if self.skipped is not None and cfg.mode == "on":
             raise InputError(
                 f"ingest.stereo.mode=on but {self.skipped}; --set ingest.stereo.mode=auto"
@@ -61,16 +63,36 @@ class FrameStereo:
     def active(self) -> bool:
         return self.skipped is None
 
+    def check(self, sources: list[int], images: list[np.ndarray]) -> RigCheck | None:
+        """Check a rig against its images (rig_check.py) on the kept frames (`sources`, their
+        source indices, and their RGB `images` at the working size): the pairing and the row
+        offset `of` then matches with. None without a rig to check."""
+        if not self.active or self.pairs is None or not self.cfg.check or len(sources) < 2:
+            return None
+        h, w = images[0].shape[:2]
+        by_source = dict(zip(sources, images, strict=True))
+        self.rig = check_rig(
+            sources, by_source.__getitem__, lambda s: self._right(s, (w, h)), self.cfg.max_offset
+        )
+        return self.rig
+
+    def _right(self, source_index: int, size: tuple[int, int]) -> np.ndarray | None:
+        assert self.pairs is not None
+        right = self.pairs.right(source_index)
+        return None if right is None else resize(right, size)
+
     def of(self, source_index: int, left: np.ndarray, usable: np.ndarray) -> np.ndarray | None:
         """float32 z-depth (mm, 0 = unknown) of a kept frame (working size), matched only where
-        `usable` (the field of view without highlights); None when it has no right view."""
+        `usable` (the field of view without highlights); None when it has no right view. A
+        checked rig's right frame is the one its check paired, its rows shifted as found."""
         if self.given is not None:
             return self._given(source_index, left, usable)
         assert self.pairs is not None and self.camera is not None
-        right = self.pairs.right(source_index)
+        rig = self.rig or RigCheck()
+        right = self._right(source_index + rig.frame_offset, (left.shape[1], left.shape[0]))
         if right is None:
             return None
-        right = resize(right, (left.shape[1], left.shape[0]))
+        right = shifted_rows(right, rig.row_shift_px)
         return match_depth(left, right, self.camera.fx, self.pairs.baseline_mm, self.cfg, usable)
 
     def _given(self, source_index: int, left: np.ndarray, usable: np.ndarray) -> np.ndarray | None:

@@ -35,6 +35,8 @@ class IngestSummary(Summary):
     stereo_baseline_mm: float | None = None
     stereo_coverage: list[float | None] | None = None
     stereo_mean_coverage: float | None = None
+    #: the rig checked against its images (its pairing and rows), in one line; None: unchecked
+    stereo_check: str | None = None
     #: depth maps made elsewhere (`--depth-prior`, relative; 01_ingest/depth_prior/): the
     #: folder they were read from and how many kept frames had one (None: no prior given)
     depth_prior: str | None = None

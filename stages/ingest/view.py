@@ -18,6 +18,7 @@ from pydantic import BaseModel, Field
 from endopipe.pipeline.errors import InputError
 from endopipe.pipeline.stage import read_summary
 from endopipe.stages.camera import Camera
+from endopipe.stages.ingest.rig_check import RigCheck
 from endopipe.stages.ingest.summary import IngestSummary
 from endopipe.stages.io.datasets import open_ground_truth
 from endopipe.stages.io.ground_truth import GroundTruthSource
@@ -76,6 +77,9 @@ class StereoInfo(BaseModel):
         description="distance between the eyes, mm; None: the data set's own depth maps"
     )
     matcher: str = Field(description="how the depth was matched, or that it was given")
+    rig: RigCheck | None = Field(
+        None, description="the rig checked against its images: pairing and rows (rig_check.py)"
+    )
 
 
 class FramesFile(BaseModel):
