@@ -390,7 +390,7 @@ def test_a_run_that_died_is_not_shown_as_running(case_copy: Path) -> None:
 def test_loss_legend_sits_beside_the_curves(tiny_case: Path) -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from endopipe.stages.nerf.stage import loss_figure
+    from endopipe.stages.nerf.evaluate import loss_figure
 
     rows = PIPELINE.view(tiny_case, "nerf").train_log()
     fig = loss_figure(rows)
@@ -403,7 +403,7 @@ def test_loss_legend_sits_beside_the_curves(tiny_case: Path) -> None:
 
 
 def test_heldout_grid_has_column_titles_and_colour_bars() -> None:
-    from endopipe.stages.nerf.stage import heldout_figure
+    from endopipe.stages.nerf.evaluate import heldout_figure
 
     img = np.full((32, 40, 3), 0.5, np.float32)
     depth = np.linspace(10, 40, 32 * 40, dtype=np.float32).reshape(32, 40)

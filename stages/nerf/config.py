@@ -286,6 +286,20 @@ class SamplingConfig(_Section):
         "the wall is extrapolated straight, not seen) is not bounded there: far = the cap.",
     )
     chunk: int = Field(8192, ge=256, description="Rays per chunk when rendering whole images.")
+    proposal: bool = Field(
+        True,
+        description="two_pass, training: the first pass reads a coarse copy of the density on "
+        "a dense grid (nerf/proposal.py), refreshed as training goes, instead of the field.",
+    )
+    proposal_res: int = Field(
+        128, ge=8, description="Cells of the proposal grid along the box's longest side."
+    )
+    proposal_every: int = Field(
+        16, ge=1, description="Steps between refreshes of a share of the proposal's cells."
+    )
+    proposal_share: float = Field(
+        0.25, gt=0, le=1, description="Share of the proposal's cells each refresh evaluates."
+    )
 
 
 class LossConfig(_Section):
@@ -388,6 +402,12 @@ class LossConfig(_Section):
         "off without it, 4.3-4.6% with it, two seeds (0: off).",
     )
     sparse_rays: int = Field(256, ge=1, description="SfM-point rays per step.")
+    depth_rays_photo: bool = Field(
+        True,
+        description="Render the SfM-point and stereo rays with the batch, their pixels' "
+        "colours in L_photo too (one render a step instead of three; more rays for the "
+        "photometric fit); off: rendered apart, for their depth only.",
+    )
     sparse_min_track: int = Field(
         3, ge=2, description="Use points seen in at least this many images."
     )
@@ -521,6 +541,12 @@ class TrainConfig(_Section):
     )
     eval_frames: int = Field(
         0, ge=0, description="Evaluate at most this many held-out frames (0: all of them)."
+    )
+    fit_frames: int = Field(
+        3,
+        ge=0,
+        description="Training frames rendered after training to measure the fit (spread over "
+        "the sequence; 0: none, and no word on whether the field learned its images).",
     )
 
 

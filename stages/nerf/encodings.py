@@ -128,6 +128,17 @@ class VMGrid(nn.Module):
             lw = torch.stack([1.0 - fc, fc], -1).reshape(-1, 2)
         return pidx, pw, lidx, lw
 
+    @staticmethod
+    def select(prep: tuple, keep: torch.Tensor, n: int) -> tuple:
+        """The set-up of `prepare` for the points `keep` (indices) of its `n` points: rows of
+        three (one a plane / line pair) per point; anything else (a time) as it is."""
+        out = []
+        for a in prep:
+            if a is not None and a.dim() == 2 and a.shape[0] == 3 * n:
+                a = a.view(n, 3, -1)[keep].reshape(-1, a.shape[1])
+            out.append(a)
+        return tuple(out)
+
     def forward(
         self, x: torch.Tensor, prep: tuple[torch.Tensor, ...] | None = None
     ) -> torch.Tensor:

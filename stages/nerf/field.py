@@ -195,6 +195,16 @@ class TensorfField(RadianceField):
             return sigma, f
         return sigma, self.decode(f, d)
 
+    def density_prepared(self, x: torch.Tensor) -> tuple[torch.Tensor, tuple]:
+        """sigma at grid points and the interpolation set-up, for `features_at` later."""
+        prep = self.density_grid.prepare(x)
+        return self._activate(self.density_grid(x, prep).sum(-1), x), prep
+
+    def features_at(self, x: torch.Tensor, prep: tuple, keep: torch.Tensor) -> torch.Tensor:
+        """The albedo features of the points `keep` (indices) of a prepared set (a deferred
+        field's: composited, then decoded once a ray)."""
+        return self.app_grid(x[keep], self.app_grid.select(prep, keep, x.shape[0]))
+
     def decode(self, features: torch.Tensor, d: torch.Tensor | None = None) -> torch.Tensor:
         h = torch.cat(
             [self.basis(features), *self._dir_features(d, features.shape[0], features)], -1

@@ -6,6 +6,8 @@ MODEL_FILE = "model.pt"
 TRAIN_LOG_FILE = "train_log.csv"
 LOSS_PLOT_FILE = "loss.png"
 HELDOUT_PLOT_FILE = "heldout.png"
+#: Every held-out frame beside its render, with its PSNR.
+HELDOUT_PAIRS_FILE = "heldout_pairs.jpg"
 #: The held-out frames as the field renders them (16-bit RGB PNG, display-encoded).
 HELDOUT_RGB_DIR = "heldout_rgb"
 REFINED_CAMERAS_FILE = "cameras_refined.json"

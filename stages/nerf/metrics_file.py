@@ -19,5 +19,10 @@ class NerfMetrics(MetricsFile):
     heldout: list[int] = []  # the frames evaluated
     render_rgb_ms: float | None = None  # median time to render one, colour and depth
     psnr: float | None = None  # mean over them, on their usable pixels
+    neighbour_psnr: float | None = None  # ... each guessed as its two neighbours' average
+    train_psnr: float | None = None  # a few training frames rendered (the fit), same pixels
+    fit_frames: list[int] = []  # ... which
+    fit: str | None = None  # fit.py's word: learned | learned, not held out | not learned
+    fit_said: str | None = None  # ... and its line with the figures
     depth: NerfDepthScores | None = None  # with ground-truth depth
     depth_frames: int | None = None  # ... on this many of them

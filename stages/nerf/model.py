@@ -28,9 +28,13 @@ from torch import nn
 
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.field import RadianceField, make_field
+from endopipe.stages.nerf.proposal import ProposalGrid
 from endopipe.stages.nerf.sampling import coarse_then_fine, composite, spaced, two_pass
 from endopipe.stages.nerf.scene import SceneBox
 
+#: Samples whose compositing weight is at most this add nothing a pixel shows: a deferred
+#: field reads no albedo features there (most samples of a ray that meets one surface).
+WEIGHT_FLOOR = 1e-4
 #: Terms of the radial falloff polynomial in (1 - cos theta).
 FALLOFF_TERMS = 3
 
@@ -55,7 +59,8 @@ class NerfModel(nn.Module):
         self.log_gain = nn.Parameter(torch.tensor(math.log(gain)), requires_grad=True)
         amb = max(cfg.shading.ambient, 1e-6)
         self.ambient_raw = nn.Parameter(torch.tensor(math.log(math.expm1(amb))))
-        self.exposure = nn.Parameter(torch.zeros(max(n_frames, 1)))
+        # Log gains per frame and colour channel (the exposure and the white balance).
+        self.exposure = nn.Parameter(torch.zeros(max(n_frames, 1), 3))
         # Which frames' exposures are trained: the gauge (their mean is 0), set by the trainer.
         self.register_buffer("exposure_trained", torch.ones(max(n_frames, 1)))
         self.falloff = nn.Parameter(torch.zeros(FALLOFF_TERMS))  # a_k: F = 1 at the start
@@ -64,6 +69,9 @@ class NerfModel(nn.Module):
         # (or one for all) while rendering: `to_grid` appends it to every point.
         self.register_buffer("frame_time", torch.zeros(max(n_frames, 1)))
         self._time: torch.Tensor | None = None
+        # The trainer's coarse copy of the density (proposal.py), read by the first sampling
+        # pass while training; None, or not ready: the field itself. Not part of the model.
+        self.proposal: ProposalGrid | None = None
 
     def set_trained_frames(self, frames: list[int]) -> None:
         """Only these frames' exposures are fitted (and define their zero mean)."""
@@ -76,6 +84,8 @@ class NerfModel(nn.Module):
         newer than the state dict (the photometric model) keep their initial values."""
         own = super().state_dict()
         state = {**{k: own[k] for k in NEW_KEYS if k not in state}, **state}
+        if state["exposure"].dim() == 1:  # one log gain a frame, before the colour channels
+            state = {**state, "exposure": state["exposure"][:, None].expand(-1, 3).clone()}
         start = state.get("field.start")
         if start is not None and hasattr(self.field, "start"):
             self.field.start = start.to(self.log_gain.device)
@@ -122,7 +132,9 @@ class NerfModel(nn.Module):
                     out[f"falloff_{deg}deg"] = float(self.radial_falloff(c)[0])
             if sc.exposure:
                 keep = self.exposure_trained > 0
-                out["exposure_std"] = float(self._exposure_centred()[keep].std(unbiased=False))
+                out["exposure_std"] = float(
+                    self._exposure_centred()[keep].mean(-1).std(unbiased=False)
+                )
             return out
 
     # --- geometry helpers ---------------------------------------------------------------------
@@ -206,7 +218,7 @@ class NerfModel(nn.Module):
                 else (s.render_coarse, s.render_fine, 0)
             )
             return two_pass(
-                self.density_scene,
+                self._first_pass_density(),
                 o,
                 d,
                 near,
@@ -219,6 +231,14 @@ class NerfModel(nn.Module):
                 gen,
             )
         return spaced(near, far, s.n_coarse, s.spacing, jitter, gen)
+
+    def _first_pass_density(self):
+        """What the first sampling pass reads: the proposal grid in training once it holds the
+        field, else the field."""
+        p = self.proposal
+        if self.training and p is not None and p.ready:
+            return lambda x: p.density(self.box.to_grid(x))
+        return self.density_scene
 
     # --- rendering ----------------------------------------------------------------------------
     def render_rays(
@@ -279,7 +299,12 @@ class NerfModel(nn.Module):
         b, s = t.shape
         x = self.to_grid((o[:, None, :] + t[..., None] * d[:, None, :]).reshape(-1, 3))
         deferred = self.field.deferred
-        if colour:
+        sparse = colour and deferred and hasattr(self.field, "features_at")
+        prep = None
+        if sparse:  # density first; albedo features only where the weight counts
+            sigma, prep = self.field.density_prepared(x)
+            feat = None
+        elif colour:
             dirs = None
             if self.field.dir_dim and not deferred:
                 dirs = d[:, None, :].expand(b, s, 3).reshape(-1, 3)
@@ -293,7 +318,16 @@ class NerfModel(nn.Module):
         # Transparent rays: fall back to the far bound instead of 0 (keeps r^2 finite).
         depth = torch.where(opacity > 1e-4, depth, far)
         out = {"t": t, "weights": w, "tau": tau, "opacity": opacity, "depth": depth}
-        if colour:
+        if sparse:
+            keep = torch.nonzero(w.detach().reshape(-1) > WEIGHT_FLOOR)[:, 0]
+            feat = self.field.features_at(x, prep, keep)
+            f = feat.new_zeros(b, feat.shape[1]).index_add(
+                0, keep // s, w.reshape(-1)[keep, None] * feat
+            )
+            out["albedo"] = (
+                self.field.decode(f / opacity.clamp_min(1e-6)[:, None], d) * opacity[:, None]
+            )
+        elif colour:
             f = torch.bmm(w[:, None, :], feat.view(b, s, -1))[:, 0]
             if deferred:
                 f = self.field.decode(f / opacity.clamp_min(1e-6)[:, None], d) * opacity[:, None]
@@ -312,10 +346,25 @@ class NerfModel(nn.Module):
         return (powers * self.falloff).sum(-1).exp()
 
     def _exposure_centred(self) -> torch.Tensor:
-        """Log exposures minus their mean over the trained frames; 0 for the others."""
-        w = self.exposure_trained
-        mean = (self.exposure * w).sum() / w.sum().clamp_min(1.0)
-        return (self.exposure - mean) * w
+        """Log exposures (frames x channels) minus their mean over the trained frames; a frame
+        not trained on (held out) gets its trained neighbours' in time, interpolated by
+        position: a scope's exposure changes smoothly, and the neighbours' images are what the
+        neighbour average sees too (no look at the frame itself)."""
+        w = self.exposure_trained > 0
+        centred = self.exposure - self.exposure[w].mean(0) if w.any() else self.exposure * 0
+        if w.all() or not w.any():
+            return centred
+        trained = torch.nonzero(w)[:, 0]
+        pos = torch.arange(len(w), device=w.device)
+        after = torch.searchsorted(trained, pos).clamp(max=len(trained) - 1)
+        before = (after - 1).clamp(min=0)
+        a, b = trained[before], trained[after]
+        b = torch.where(b < pos, a, b)  # past the last trained frame: the last one
+        a = torch.where(a > pos, b, a)  # before the first: the first one
+        span = (b - a).clamp(min=1).to(centred.dtype)
+        mix = ((pos - a).to(centred.dtype) / span).clamp(0, 1)[:, None]
+        between = centred[a] * (1 - mix) + centred[b] * mix
+        return torch.where(w[:, None], centred, between)
 
     def shade(self, out, albedo, d, dnorm, frame, mix: float) -> torch.Tensor:
         cfg = self.cfg.shading
@@ -334,5 +383,5 @@ class NerfModel(nn.Module):
                 light = light * self.radial_falloff(1.0 / dnorm)  # cos theta = 1 / |d|
             lin = albedo * light[:, None]
             if cfg.exposure and frame is not None:
-                lin = lin * self._exposure_centred()[frame].exp()[:, None]
+                lin = lin * self._exposure_centred()[frame].exp()
         return lin.clamp_min(1e-4) ** (1.0 / self.gamma())

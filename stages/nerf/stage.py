@@ -22,18 +22,15 @@ from endopipe.pipeline.stage import Stage, StageContext
 from endopipe.stages.camera import Camera, image_directions, lens_valid_mask, pixel_rays
 from endopipe.stages.centerline.view import CenterlineView
 from endopipe.stages.ingest.view import IngestView
-from endopipe.stages.io.ground_truth import depth_of_frame
-from endopipe.stages.metrics.depth import depth_sequence_metrics
-from endopipe.stages.nerf import losses
 from endopipe.stages.nerf.bounds import PriorBounds
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.data import FrameSet, holdout_split
-from endopipe.stages.nerf.files import HELDOUT_RGB_DIR, MODEL_FILE
-from endopipe.stages.nerf.metrics_file import NerfMetrics
+from endopipe.stages.nerf.evaluate import evaluate, plot_log
+from endopipe.stages.nerf.files import MODEL_FILE
 from endopipe.stages.nerf.point_refine import refine_points
 from endopipe.stages.nerf.pose_refine import record, refinement_wanted
 from endopipe.stages.nerf.prior_depth import PriorRays, prior_depth_targets
-from endopipe.stages.nerf.render import pick_device, render_image, save_model
+from endopipe.stages.nerf.render import pick_device, save_model
 from endopipe.stages.nerf.scene import SceneBox
 from endopipe.stages.nerf.shading_depth import only_shading_places_depth, shading_depth
 from endopipe.stages.nerf.sparse_depth import SparseDepth, sparse_depth_targets
@@ -431,7 +428,9 @@ class Nerf(Stage):
 
     name = "nerf"
     needs = ("ingest", "poses", "centerline")
-    version = 8  # 8: the user's depth prior (relative) shapes the field; 7: stereo depth
+    # 9: the proposal grid, the depth rays rendered with the batch, exposures a channel, the
+    # fit measured; 8: the user's depth prior (relative) shapes the field; 7: stereo depth
+    version = 9
     Config = NerfConfig
     Summary = NerfSummary
     View = NerfView
@@ -490,8 +489,18 @@ class Nerf(Stage):
         model = trainer.model.eval()
         rays_per_s = cfg.train.batch_rays * trainer.step_i / max(trainer.elapsed, 1e-9)
         evaluation = evaluate(
-            model, run.prior, ingest, run.camera, c2w_used, run.ids, run.held_ids, cfg, ctx
+            model,
+            run.prior,
+            ingest,
+            run.camera,
+            c2w_used,
+            run.ids,
+            run.held_ids,
+            run.train_ids,
+            cfg,
+            ctx,
         )
+        ctx.log(evaluation.fit_said)
         (ctx.out / CHECKPOINT).unlink(missing_ok=True)
         evaluation.write(ctx.out)
         return NerfSummary(
@@ -504,6 +513,9 @@ class Nerf(Stage):
             rays_per_s=round(rays_per_s, 1),
             render_ms=evaluation.render_rgb_ms,
             heldout_psnr=evaluation.psnr,
+            train_psnr=evaluation.train_psnr,
+            neighbour_psnr=evaluation.neighbour_psnr,
+            fit=evaluation.fit,
             depth=evaluation.depth,
             resumed_from=start,
             device=str(trainer.device),
@@ -517,137 +529,5 @@ class Nerf(Stage):
         )
 
 
-def evaluate(model, prior, ingest, k, c2w, ids, held_ids, cfg: NerfConfig, ctx) -> NerfMetrics:
-    """Render the held-out frames: PSNR on usable pixels, depth metrics against ground truth."""
-    held = held_ids[: cfg.train.eval_frames] if cfg.train.eval_frames else held_ids
-    gt = ingest.ground_truth_for_scores(ctx.log)
-    fov = ingest.fov()
-    lens_valid = lens_valid_mask(k)
-    pos = {i: p for p, i in enumerate(ids)}
-    preds, gts, fovs, mses, times, previews = [], [], [], [], [], []
-    (ctx.out / HELDOUT_RGB_DIR).mkdir(exist_ok=True)
-    for i in held:
-        t0 = time.perf_counter()
-        with model.at_frame(pos[i]):  # a dynamic field: at the frame's own time
-            out = render_image(model, prior, k, c2w[pos[i]])
-        times.append(time.perf_counter() - t0)
-        save_rgb16(ctx.out / HELDOUT_RGB_DIR / f"{i:06d}.png", out["rgb"])  # the depth stage's
-        img = ingest.image(i).astype(np.float32) / 255.0
-        m = (ingest.mask(i) > 127) & lens_valid
-        mses.append(float(((out["rgb"] - img) ** 2).mean(-1)[m].mean()) if m.any() else np.nan)
-        g = depth_of_frame(gt, ingest.frame(i))
-        if g is not None and g.shape != out["depth"].shape:
-            import cv2
-
-            g = cv2.resize(g, out["depth"].shape[::-1], interpolation=cv2.INTER_NEAREST)
-        previews.append((img, out, g))
-        if g is not None:
-            preds.append(out["depth"])
-            gts.append(g)
-            fovs.append(fov > 127 if fov is not None else None)
-    result: dict = {
-        "heldout": held,
-        "render_rgb_ms": round(1000 * float(np.median(times)), 1) if times else None,
-    }
-    if mses:
-        result["psnr"] = round(float(np.nanmean([losses.psnr(m) for m in mses])), 3)
-    if preds:
-        metrics = depth_sequence_metrics(preds, gts, fovs, unscaled=True)
-        result["depth"] = {k: metrics[k] for k in ("median_scaled", "sequence_scaled", "unscaled")}
-        result["depth_frames"] = len(preds)
-    if previews:
-        poses = ctx.input(PosesView)
-        write_preview(ctx.out / "heldout.png", previews[:4], poses.file.units, poses.metric)
-    return NerfMetrics.model_validate(result)
-
-
-#: Depth is drawn with one colour map everywhere (this grid, 05_depth/preview.mp4, the report).
-DEPTH_CMAP = "turbo"
-
-
-def write_preview(path: Path, items, units: str = "", metric: bool = True) -> None:
-    """heldout.png: the held-out grid of `heldout_figure`."""
-    heldout_figure(items, units, metric).savefig(path, facecolor="white")
-
-
-def heldout_figure(items, units: str = "", metric: bool = True):
-    """Held-out frames, a row each: image | rendering | rendered depth | ground-truth depth,
-    with column titles and a colour bar per depth panel. With metric poses the rendered depth
-    shares the ground truth's colour scale; otherwise each has its own. `items`: (image,
-    rendering {rgb, depth}, ground-truth depth or None) per frame."""
-    from matplotlib.figure import Figure
-
-    h, w = items[0][1]["depth"].shape[:2]
-    titles = ["held-out image", "NeRF rendering", f"rendered depth ({units or 'scene units'})"]
-    has_gt = any(g is not None for _, _, g in items)
-    if has_gt:
-        titles.append(f"ground-truth depth ({units or 'GT units'})")
-    ncols, tile = len(titles), 2.6
-    fig = Figure(figsize=(tile * ncols + 0.6, len(items) * tile * h / w + 0.6), dpi=100)
-    for r, (img, out, gt) in enumerate(items):
-        axes = [fig.add_subplot(len(items), ncols, r * ncols + c + 1) for c in range(ncols)]
-        axes[0].imshow(np.clip(img, 0, 1))
-        axes[1].imshow(np.clip(out["rgb"], 0, 1))
-        depth_panels = [(axes[2], out["depth"])] + ([(axes[3], gt)] if gt is not None else [])
-        shared = _depth_range(gt) if gt is not None and metric else None
-        if has_gt and gt is None:
-            axes[3].text(0.5, 0.5, "no ground truth", ha="center", va="center", color="0.5")
-        for ax, z in depth_panels:
-            lo, hi = shared or _depth_range(z)
-            im = ax.imshow(np.ma.masked_where(z <= 0, z), cmap=DEPTH_CMAP, vmin=lo, vmax=hi)
-            fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02).ax.tick_params(labelsize=6)
-        for c, ax in enumerate(axes):
-            ax.set_xticks([])
-            ax.set_yticks([])
-            if r == 0:
-                ax.set_title(titles[c], fontsize=8)
-    fig.tight_layout()
-    return fig
-
-
-def _depth_range(z: np.ndarray) -> tuple[float, float]:
-    """The 2nd to 98th percentile of the valid depth: the colour scale of a depth panel."""
-    valid = z[(z > 0) & np.isfinite(z)]
-    lo, hi = np.percentile(valid, [2, 98]) if valid.size else (0.0, 1.0)
-    return float(lo), float(hi if hi > lo else lo + 1e-6)
-
-
-def plot_log(rows: list[dict], path: Path) -> None:
-    """loss.png: the curves of `loss_figure` (nothing without a logged step)."""
-    if rows:
-        loss_figure(rows).savefig(path, facecolor="white")
-
-
-def loss_figure(rows: list[dict]):
-    """Losses (log scale; the legend beside the plot, never over a curve) and training PSNR."""
-    from matplotlib.figure import Figure
-
-    steps = [r["step"] for r in rows]
-    fig = Figure(figsize=(11, 3.6), dpi=90)
-    loss_ax, psnr_ax = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
-    for key in ("loss", "photo", "prior", "smooth", "geo", "sparse", "stereo", "depth_prior"):
-        vals = [r.get(key) for r in rows]
-        if any(v is not None for v in vals):
-            loss_ax.plot(steps, [np.nan if v is None else v for v in vals], label=key)
-    loss_ax.set_yscale("log")
-    loss_ax.set_xlabel("step")
-    loss_ax.set_title("training losses (log scale)", fontsize=10)
-    loss_ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
-    psnr_ax.plot(steps, [r["psnr"] for r in rows])
-    psnr_ax.set_xlabel("step")
-    psnr_ax.set_ylabel("train PSNR (dB)")
-    psnr_ax.set_title("training PSNR (batch rays)", fontsize=10)
-    fig.tight_layout()
-    return fig
-
-
 def describe_config() -> str:
     return json.dumps(NerfConfig().model_dump(mode="json"), indent=1)
-
-
-def save_rgb16(path: Path, rgb: np.ndarray) -> None:
-    """An (H, W, 3) image in [0, 1] as a lossless 16-bit PNG (PSNR is unchanged by it)."""
-    import cv2
-
-    img = np.clip(np.round(np.asarray(rgb, np.float64) * 65535.0), 0, 65535).astype(np.uint16)
-    cv2.imwrite(str(path), img[..., ::-1])

@@ -52,6 +52,9 @@ class NerfSummary(Summary):
     rays_per_s: float
     render_ms: float | None = None  # one held-out frame through the field, colour and depth
     heldout_psnr: float | None = None
+    train_psnr: float | None = None  # the fit: training frames rendered after training
+    neighbour_psnr: float | None = None  # the held-out frames guessed from their neighbours
+    fit: str | None = None  # learned | learned, not held out | not learned (nerf/fit.py)
     depth: NerfDepthScores | None = None
     resumed_from: int = 0
     device: str = "cpu"

@@ -16,6 +16,7 @@ from pydantic import BaseModel
 from endopipe.pipeline.cache import Manifest
 from endopipe.pipeline.stage import read_summary
 from endopipe.stages.nerf.files import (
+    HELDOUT_PAIRS_FILE,
     HELDOUT_PLOT_FILE,
     HELDOUT_RGB_DIR,
     LOSS_PLOT_FILE,
@@ -131,6 +132,11 @@ class NerfView:
     def heldout_plot_path(self) -> Path:
         """heldout.png: held-out frames, their renderings and depth (absent without any)."""
         return self.folder / HELDOUT_PLOT_FILE
+
+    @property
+    def heldout_pairs_path(self) -> Path:
+        """heldout_pairs.jpg: every held-out frame beside its render (absent without any)."""
+        return self.folder / HELDOUT_PAIRS_FILE
 
     # --- evaluation ---------------------------------------------------------------------------
     @cached_property

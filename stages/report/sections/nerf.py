@@ -10,12 +10,21 @@ from endopipe.stages.report.sections.common import ReportInfo
 from endopipe.stages.report.sections.scores import score_table
 
 
+#: The fit's word (nerf/fit.py) and its badge's colour.
+FIT_BADGE = {
+    "learned": ("learned its images", "ok"),
+    "learned, not held out": ("learned, not held out", "warn"),
+    "not learned": ("did not learn its images", "bad"),
+}
+
+
 def section_nerf(data: CaseData, info: ReportInfo) -> str | None:
     nerf, s = data.nerf, data.nerf_summary
-    loss = held = None
+    loss = held = pairs = None
     if nerf is not None:
         loss = file_image_uri(nerf.loss_plot_path, 1100)
         held = file_image_uri(nerf.heldout_plot_path, 1100, "jpg", data.cfg.jpeg_quality)
+        pairs = file_image_uri(nerf.heldout_pairs_path, 1100, "jpg", data.cfg.jpeg_quality)
     if loss is None and held is None and s is None:
         return None
     nm = data.nerf_metrics
@@ -28,6 +37,9 @@ def section_nerf(data: CaseData, info: ReportInfo) -> str | None:
         "sections/nerf.html.j2",
         loss=loss,
         held=held,
+        pairs=pairs,
+        fit=FIT_BADGE.get(nm.fit or "") if nm is not None else None,
+        nm=nm,
         s=s,
         render_rgb_ms=nm.render_rgb_ms if nm is not None else None,
         psnr=psnr,
