@@ -402,12 +402,6 @@ class LossConfig(_Section):
         "off without it, 4.3-4.6% with it, two seeds (0: off).",
     )
     sparse_rays: int = Field(256, ge=1, description="SfM-point rays per step.")
-    depth_rays_photo: bool = Field(
-        True,
-        description="Render the SfM-point and stereo rays with the batch, their pixels' "
-        "colours in L_photo too (one render a step instead of three; more rays for the "
-        "photometric fit); off: rendered apart, for their depth only.",
-    )
     sparse_min_track: int = Field(
         3, ge=2, description="Use points seen in at least this many images."
     )

@@ -76,26 +76,6 @@ class FrameSet:
         """Scene-frame rays (origins, directions with camera z = 1) through pixels of frames."""
         return self.pixel_rays(self.pose(frame), u, v)
 
-    def colour_at(
-        self, frame: torch.Tensor, u: torch.Tensor, v: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The frames' colours at sub-pixel positions (bilinear) and whether all four pixels
-        read are usable."""
-        u = u.clamp(0, self.w - 1.001)
-        v = v.clamp(0, self.h - 1.001)
-        u0, v0 = u.floor().long(), v.floor().long()
-        fu, fv = (u - u0)[:, None], (v - v0)[:, None]
-        img, m = self.images, self.masks
-        rgb = (
-            img[frame, v0, u0] * (1 - fu) * (1 - fv)
-            + img[frame, v0, u0 + 1] * fu * (1 - fv)
-            + img[frame, v0 + 1, u0] * (1 - fu) * fv
-            + img[frame, v0 + 1, u0 + 1] * fu * fv
-        )
-        valid = m[frame, v0, u0] & m[frame, v0, u0 + 1]
-        valid &= m[frame, v0 + 1, u0] & m[frame, v0 + 1, u0 + 1]
-        return rgb, valid
-
     def pixel_rays(self, c2w: torch.Tensor, u: torch.Tensor, v: torch.Tensor):
         """Rays of this camera at scene-frame poses c2w ((4, 4) or (B, 4, 4))."""
         return pixel_rays(self.camera, c2w, u, v, self._directions)

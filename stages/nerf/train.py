@@ -19,7 +19,7 @@ from endopipe.stages.camera import project
 from endopipe.stages.nerf import losses
 from endopipe.stages.nerf.bounds import PixelBounds, PriorBounds
 from endopipe.stages.nerf.config import NerfConfig
-from endopipe.stages.nerf.data import Batch, FrameSet, RaySampler, neighbours
+from endopipe.stages.nerf.data import FrameSet, RaySampler, neighbours
 from endopipe.stages.nerf.model import NerfModel
 from endopipe.stages.nerf.pose_refine import PoseCorrection, corrected_world, lr_factor
 from endopipe.stages.nerf.prior_depth import PriorRays
@@ -262,12 +262,10 @@ class Trainer:
         # Poses move once the coarse field has settled (before that: the given rays, exactly).
         self.frames.refining = self.correction is not None and (progress >= cfg.pose_refine.start)
         b = self.sampler.sample()
-        extra = self._depth_rays() if lc.depth_rays_photo else {}
-        b_all = self._joined(b, extra)
-        o, d = self.frames.rays(b_all.frame, b_all.u, b_all.v)
+        o, d = self.frames.rays(b.frame, b.u, b.v)
         fixed = self.pixel_bounds if not self.frames.refining else None
         if fixed is not None:
-            near, far = fixed.sampling(b_all.frame, b_all.u, b_all.v)
+            near, far = fixed.sampling(b.frame, b.u, b.v)
         else:
             near, far, _ = self.pb.bounds(o, d, self.pb.margin)
         warm = cfg.shading.normal_warmup
@@ -279,15 +277,13 @@ class Trainer:
             d,
             near,
             far,
-            frame=b_all.frame,
+            frame=b.frame,
             jitter=True,
             gen=self.gen,
             colour=True,
             normals=need_normals,
             shading_mix=mix,
         )
-        depth_of = self._slices(len(b.frame), extra, out)
-        b = b_all
         terms: dict[str, torch.Tensor] = {}
         sat, trim = lc.saturation, lc.photo_trim
         photo = losses.photo(out["rgb"], b.rgb, b.valid, sat, trim)
@@ -333,18 +329,11 @@ class Trainer:
             terms["geo"] = self._geo_term(b, o, d, out["depth"])
             loss = loss + lc.lambda_geo * terms["geo"]
         if lc.sparse_weight > 0 and self.sparse is not None:
-            if "sparse" in depth_of:
-                rendered, z = depth_of["sparse"]
-                terms["sparse"] = losses.sparse_depth(rendered["depth"], z)
-            else:
-                terms["sparse"] = self._sparse_term()
+            terms["sparse"] = self._sparse_term()
             loss = loss + lc.sparse_weight * terms["sparse"]
         if lc.stereo_weight > 0 and self.stereo is not None:
-            if "stereo" in depth_of:
-                rendered, z = depth_of["stereo"]
-            else:
-                frame, u, v, z = self.stereo.sample(lc.stereo_rays, self.gen)
-                rendered = self._render(*self.frames.rays(frame, u, v), frame)
+            frame, u, v, z = self.stereo.sample(lc.stereo_rays, self.gen)
+            rendered = self._render(*self.frames.rays(frame, u, v), frame)
             terms["stereo"] = losses.sparse_depth(rendered["depth"], z)
             loss = loss + lc.stereo_weight * terms["stereo"]
             spread = lc.spread_weight(still=False)  # set_up_training resolved auto
@@ -393,46 +382,6 @@ class Trainer:
             vals["pose_deg"] = delta[:, :3].norm(dim=-1).mean() * (180.0 / math.pi)
             vals["pose_move"] = delta[:, 3:].norm(dim=-1).mean() * self.box.scale
         return vals
-
-    def _depth_rays(self) -> dict[str, tuple[torch.Tensor, ...]]:
-        """This step's rays with a measured depth (frame, u, v, z): the SfM points' and the
-        stereo's, rendered with the batch (`_joined`), their pixels' colours in L_photo."""
-        lc, rays = self.cfg.loss, {}
-        if lc.sparse_weight > 0 and self.sparse is not None:
-            rays["sparse"] = self.sparse.sample(lc.sparse_rays, self.gen)
-        if lc.stereo_weight > 0 and self.stereo is not None:
-            rays["stereo"] = self.stereo.sample(lc.stereo_rays, self.gen)
-        return rays
-
-    def _joined(self, b: Batch, extra: dict[str, tuple[torch.Tensor, ...]]) -> Batch:
-        """The batch with the depth rays appended as single rays, their colours read from the
-        frames (bilinear: an SfM point lies between pixels)."""
-        if not extra:
-            return b
-        frame = torch.cat([b.frame, *(r[0] for r in extra.values())])
-        u = torch.cat([b.u, *(r[1] for r in extra.values())])
-        v = torch.cat([b.v, *(r[2] for r in extra.values())])
-        n = len(b.frame)
-        rgb, valid = self.frames.colour_at(frame[n:], u[n:], v[n:])
-        return Batch(
-            frame=frame,
-            u=u,
-            v=v,
-            rgb=torch.cat([b.rgb, rgb]),
-            valid=torch.cat([b.valid, valid]),
-            n_patches=b.n_patches,
-            patch=b.patch,
-        )
-
-    @staticmethod
-    def _slices(n: int, extra: dict, out: dict) -> dict[str, tuple[dict, torch.Tensor]]:
-        """Each kind of depth ray's rendering (depth, samples, weights) and its targets."""
-        got, a = {}, n
-        for name, (_, _, _, z) in extra.items():
-            k = len(z)
-            got[name] = ({key: out[key][a : a + k] for key in ("depth", "t", "weights")}, z)
-            a += k
-        return got
 
     def _refresh_proposal(self, everything: bool) -> None:
         """Refresh the proposal grid: all of it at the start and when the field's parameters
