@@ -37,6 +37,26 @@ class DepthConfig(StageConfig):
         "at 24 + 12 its depth stage takes 1.48 s a frame against 0.81, and the clip 10.0 min "
         "from nothing against 7.9.",
     )
+    anchor: Literal["auto", "off"] = Field(
+        "auto",
+        description="Hold each depth map to what was measured (depth/anchor.py): auto: the "
+        "rig's stereo depth where it matched (the poses metric), the field's depth corrected "
+        "to it elsewhere; without a rig, the field's depth corrected to the SfM points. The "
+        "field drifts off its measurements where the images pull it (real Hamlyn: 0.053 "
+        "against the stereo's own 0.032; the sinus: 0.108 at the authors' points, held to "
+        "its SfM points 0.097). off: the field's depth as it is.",
+    )
+    anchor_sigma_stereo: float = Field(
+        0.025,
+        gt=0,
+        description="How far a stereo pixel's correction reaches into the unmatched ones "
+        "(Gaussian sigma, a share of the image width).",
+    )
+    anchor_sigma_points: float = Field(
+        0.05,
+        gt=0,
+        description="... an SfM point's (sparser: a wider reach).",
+    )
     device: Literal["auto", "cpu", "cuda"] = Field(
         "auto",
         description="Where the field is evaluated (baking, volume rendering): auto is CUDA when "

@@ -17,6 +17,7 @@ import numpy as np
 from endopipe.pipeline.stage import Stage, StageContext
 from endopipe.stages.camera import Camera, lens_valid_mask
 from endopipe.stages.centerline.view import CenterlineView
+from endopipe.stages.depth.anchor import Anchor, Anchored
 from endopipe.stages.depth.config import DepthConfig
 from endopipe.stages.depth.evaluate import (
     evaluate,
@@ -47,10 +48,11 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    # 14: a volume-rendered ray's depth is its weights' median where no measured depth trained
-    # the field; 13: tools left out of the scores, depth from shading scored; 12: says when the
-    # truth also supervised; 11: the depth prior scored; 10: stereo
-    version = 14
+    # 15: depth held to the stereo or the SfM points; 14: a volume-rendered ray's depth is its
+    # weights' median where no measured depth trained the field; 13: tools left out of the
+    # scores, depth from shading scored; 12: says when the truth also supervised; 11: the
+    # depth prior scored; 10: stereo
+    version = 15
     Config = DepthConfig
     Summary = DepthSummary
     View = DepthView
@@ -70,6 +72,10 @@ class Depth(Stage):
         if used == "field":
             ctx.log(f"each ray's depth: {READ_OUT_WHY[field_depth(cfg, nerf)]}")
         beyond_lens = unseen_pixels(k, ingest)  # no ray, or outside the scope: no depth
+        anchor = Anchor.open(
+            cfg.anchor, ingest, poses, cfg.anchor_sigma_stereo, cfg.anchor_sigma_points
+        )
+        held: list[Anchored] = []
         for sub in (DEPTH_DIR, OPACITY_DIR):
             (ctx.out / sub).mkdir()
         depths, rgbs, times = {}, {}, []
@@ -84,7 +90,11 @@ class Depth(Stage):
                 times.append(time.perf_counter() - t0)
                 out["depth"][beyond_lens] = 0.0
                 out["opacity"][beyond_lens] = 0.0
-                depths[i] = out["depth"].astype(np.float32)
+                depth, how = anchor.apply(i, out["depth"].astype(np.float32))
+                depth[beyond_lens] = 0.0
+                if how is not None:
+                    held.append(how)
+                depths[i] = depth
                 unknown_px += int((depths[i][~beyond_lens] <= 0).sum())
                 hazy_px += int(out["hazy"][~beyond_lens].sum())
                 np.save(ctx.out / DEPTH_DIR / frame_file(i), depths[i])
@@ -93,6 +103,16 @@ class Depth(Stage):
                     rgbs[i] = out["rgb"]
                 advance(info=f"{1000 * times[-1]:.0f} ms/frame")
         png_scale = write_depth_pngs(ctx.out / DEPTH_DIR, depths)
+        measured_share = corrected_share = None
+        if held:
+            measured_share = float(np.mean([h.measured for h in held]))
+            corrected_share = float(np.mean([h.corrected for h in held]))
+            ratio = np.median([h.median_ratio for h in held if h.median_ratio is not None])
+            ctx.log(
+                f"depth held to the {anchor.source} in {len(held)} of {len(depths)} frames: "
+                f"{measured_share:.0%} of the depth pixels measured, {corrected_share:.0%} the "
+                f"field's corrected to them (measured over the field's depth, median {ratio:.3f})"
+            )
         extrapolated = poses.past_fitted_radius(k)
         still = poses.still
         stereo = stereo_maps(ingest, list(depths))
@@ -196,6 +216,9 @@ class Depth(Stage):
             heldout_ssim=metrics.heldout_ssim,
             one_viewpoint=still and not stereo,
             truth_supervised=circular,
+            anchored_to=anchor.source if held else None,
+            measured_share=measured_share,
+            corrected_share=corrected_share,
             neighbour_psnr=(metrics.neighbour_average or {}).get("psnr"),
             neighbour_ssim=(metrics.neighbour_average or {}).get("ssim"),
         )

@@ -39,6 +39,11 @@ class DepthSummary(Summary):
     #: the ground truth's depth folder when it also supervised the field (EndoNeRF's depth/):
     #: the scores say how closely the field follows it, not how right it is
     truth_supervised: str | None = None
+    #: what the depth maps are held to (depth.anchor): "stereo", "SfM points" or None, and
+    #: the shares of the depth pixels measured (pasted) and corrected, means over the frames
+    anchored_to: str | None = None
+    measured_share: float | None = None
+    corrected_share: float | None = None
     #: the held-out frames predicted by averaging their trained neighbours (no geometry)
     neighbour_psnr: float | None = None
     neighbour_ssim: float | None = None
