@@ -65,8 +65,14 @@ class RadianceField(nn.Module):
 
     @property
     def dynamic(self) -> bool:
-        """Whether points carry a fourth coordinate, the time (see `VMTimeGrid`)."""
+        """Whether the geometry changes with time (see `VMTimeGrid`)."""
         return self.cfg.dynamic is True
+
+    @property
+    def timed(self) -> bool:
+        """Whether points carry a fourth coordinate, the time: a dynamic field's, or a rigid
+        one whose albedo changes with time (`appearance_time`)."""
+        return self.dynamic or self.cfg.appearance_time is True
 
     @property
     def cell(self) -> float:
@@ -89,7 +95,7 @@ class RadianceField(nn.Module):
     def _start_at(self, x: torch.Tensor) -> torch.Tensor:
         if self.start.numel() == 0:  # not placed by a trainer yet
             return torch.zeros_like(x[:, 0])
-        g = x.view(1, -1, 1, 1, 3).to(self.start.dtype)
+        g = x[:, :3].reshape(1, -1, 1, 1, 3).to(self.start.dtype)
         v = F.grid_sample(self.start, g, mode="bilinear", padding_mode="border", align_corners=True)
         return v.view(-1).to(x.dtype)
 
@@ -151,9 +157,11 @@ class TensorfField(RadianceField):
         res = self._res(t.res_init)
         if cfg.dynamic is True:
             self.density_grid = VMTimeGrid(res, t.density_components, cfg.time_nodes, 0.1)
-            self.app_grid = VMTimeGrid(res, t.appearance_components, cfg.time_nodes, 0.1)
         else:
             self.density_grid = VMGrid(res, t.density_components, init_std=0.1)
+        if self.timed:
+            self.app_grid = VMTimeGrid(res, t.appearance_components, cfg.time_nodes, 0.1)
+        else:
             self.app_grid = VMGrid(res, t.appearance_components, init_std=0.1)
         self.basis = nn.Linear(3 * t.appearance_components, t.appearance_dim, bias=False)
         h = cfg.color_hidden
@@ -169,9 +177,9 @@ class TensorfField(RadianceField):
         """(progress, resolution) of every upsampling: log-spaced sizes up to res_final."""
         t = self.cfg.tensorf
         k = len(t.upsample_at)
-        if k == 0 or t.res_final == t.res_init:
+        if k == 0 or t.final_nodes == t.res_init:
             return []
-        sizes = torch.linspace(math.log(t.res_init), math.log(t.res_final), k + 1).exp()
+        sizes = torch.linspace(math.log(t.res_init), math.log(t.final_nodes), k + 1).exp()
         return [
             (float(f), self._res(int(round(float(s)))))
             for f, s in zip(t.upsample_at, sizes[1:], strict=True)
@@ -181,28 +189,39 @@ class TensorfField(RadianceField):
     def cell(self) -> float:
         return 2.0 / (max(self.density_grid.res) - 1)
 
+    def _where(self, x: torch.Tensor) -> torch.Tensor:
+        """The points as the density grid reads them: a rigid geometry ignores their time."""
+        return x if self.dynamic else x[:, :3]
+
+    @property
+    def _shared(self) -> bool:
+        """Whether both grids read a point alike (one interpolation set-up for both)."""
+        return self.dynamic or not self.timed
+
     def _raw(self, x: torch.Tensor) -> torch.Tensor:
-        return self.density_grid(x).sum(-1)
+        return self.density_grid(self._where(x)).sum(-1)
 
     def density(self, x: torch.Tensor) -> torch.Tensor:
         return self._activate(self._raw(x), x)
 
     def forward(self, x: torch.Tensor, d: torch.Tensor | None = None):
-        prep = self.density_grid.prepare(x)  # both grids share their resolution
-        sigma = self._activate(self.density_grid(x, prep).sum(-1), x)
-        f = self.app_grid(x, prep)
+        sigma, prep = self.density_prepared(x)
+        f = self.app_grid(x, prep if self._shared else None)
         if self.deferred:
             return sigma, f
         return sigma, self.decode(f, d)
 
     def density_prepared(self, x: torch.Tensor) -> tuple[torch.Tensor, tuple]:
         """sigma at grid points and the interpolation set-up, for `features_at` later."""
-        prep = self.density_grid.prepare(x)
-        return self._activate(self.density_grid(x, prep).sum(-1), x), prep
+        at = self._where(x)
+        prep = self.density_grid.prepare(at)  # both grids share their resolution
+        return self._activate(self.density_grid(at, prep).sum(-1), x), prep
 
     def features_at(self, x: torch.Tensor, prep: tuple, keep: torch.Tensor) -> torch.Tensor:
         """The albedo features of the points `keep` (indices) of a prepared set (a deferred
         field's: composited, then decoded once a ray)."""
+        if not self._shared:  # the albedo's own set-up, with the time
+            return self.app_grid(x[keep])
         return self.app_grid(x[keep], self.app_grid.select(prep, keep, x.shape[0]))
 
     def decode(self, features: torch.Tensor, d: torch.Tensor | None = None) -> torch.Tensor:
@@ -238,10 +257,11 @@ class TensorfField(RadianceField):
     def extra_loss(self) -> torch.Tensor | None:
         w = self.cfg.tensorf.tv_weight
         loss = w * self.density_grid.total_variation() if w > 0 else None
-        if self.dynamic and self.cfg.change_weight > 0:
-            change = self.cfg.change_weight * (
-                self.density_grid.change_penalty() + self.app_grid.change_penalty()
-            )
+        if self.timed and self.cfg.change_weight > 0:
+            change = self.app_grid.change_penalty()
+            if self.dynamic:
+                change = change + self.density_grid.change_penalty()
+            change = self.cfg.change_weight * change
             loss = change if loss is None else loss + change
         return loss
 

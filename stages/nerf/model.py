@@ -143,7 +143,7 @@ class NerfModel(nn.Module):
         column: the rays' being rendered (points ray-major, each ray's together), else the one
         set by `at_frame`, else the first frame's."""
         g = self.box.to_grid(x)
-        if not self.field.dynamic:
+        if not self.field.timed:
             return g
         flat = g.reshape(-1, 3)
         t = self._time if self._time is not None else self.frame_time[:1]
@@ -258,7 +258,7 @@ class NerfModel(nn.Module):
         """Render rays (scene frame). Returns depth (z, scene units), opacity, and when `colour`:
         rgb (display-encoded), plus normal/cos when computed, the samples t and weights."""
         before = self._time
-        if self.field.dynamic and frame is not None:
+        if self.field.timed and frame is not None:
             self._time = self.frame_time[frame]
         try:
             return self._render_rays(
