@@ -2,13 +2,15 @@
 would take the field.
 
 Run: `.venv/bin/python scripts/psnr_curve.py WORKDIR/CASE [--every 250] [--frames 4]
-[--threads 1] [--set nerf.key=value ...] [--csv OUT.csv]` (a case run up to centerline or
+[--threads 1] [--set nerf.key=value ...] [--csv OUT.csv] [--renders DIR]` (a case run up to
+centerline or
 further). Sets up the trainer as the nerf stage does (`set_up_training`, the case's own
 config.yaml and the `--set`s), trains, and every `--every` steps renders `--frames` held-out
 frames and as many training frames (spread over the sequence) in full, scoring each on the
 pixels the stage's PSNR counts (the ingest masks and the lens). Prints one row per point:
 step, training seconds so far, training PSNR, held-out PSNR; the neighbour average of the same
-held-out frames is printed once. Writes nothing into the case. A benchmark: run it alone.
+held-out frames is printed once; `--renders` writes each scored frame beside its last render.
+Writes nothing into the case. A benchmark: run it alone.
 """
 
 from __future__ import annotations
@@ -63,6 +65,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--set", action="append", default=[], dest="sets")
     ap.add_argument("--csv", type=Path, default=None)
+    ap.add_argument("--renders", type=Path, default=None, help="frame | render PNGs, at the end")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     cfg = nerf_config(args.case, args.sets)
@@ -94,6 +97,8 @@ def main() -> None:
                 nb.append(psnr_of(neighbour_average([image(j) for j in near]), i))
         print(f"neighbour average of the held-out frames: {np.mean(nb):.2f} dB ({len(nb)})")
 
+        renders: dict[int, np.ndarray] = {}
+
         def score(ids: list[int]) -> float:
             model = trainer.model.eval()
             vals = []
@@ -102,6 +107,7 @@ def main() -> None:
                 with model.at_frame(p):
                     rgb = render_image(model, run.prior, run.camera, run.c2w[p], frame=p)["rgb"]
                 vals.append(psnr_of(rgb, i))
+                renders[i] = rgb
             trainer.model.train()
             return float(np.mean(vals))
 
@@ -124,6 +130,15 @@ def main() -> None:
                 f" dB  held-out {row['heldout_psnr']:.2f} dB",
                 flush=True,
             )
+        if args.renders:
+            import cv2
+
+            args.renders.mkdir(parents=True, exist_ok=True)
+            for i, rgb in renders.items():
+                pair = np.concatenate([image(i), np.clip(rgb, 0, 1)], 1)
+                kind = "heldout" if i in held else "train"
+                name = args.renders / f"{kind}_{i:06d}.png"
+                cv2.imwrite(str(name), (pair[..., ::-1] * 255).round().astype(np.uint8))
     if args.csv:
         with open(args.csv, "w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
