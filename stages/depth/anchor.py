@@ -28,6 +28,9 @@ MIN_MEASURED = 20
 #: The weight of the frame's median ratio in the normalised convolution (as a count of pixels
 #: at the kernel's peak): where fewer measurements lie near, the median takes over.
 PRIOR_WEIGHT = 0.05
+#: A local correction counts in full once it stands this many standard errors out of the noise
+#: of the measurements near it (less is shrunk towards none).
+SIGNIFICANCE = 2.0
 
 
 class Anchored(BaseModel):
@@ -78,18 +81,26 @@ def spread(values: np.ndarray, where: np.ndarray, sigma_px: float, default: floa
     """`values` known at `where` spread over the image: normalised convolutions at sigma and
     4, 16, 64 times it, each finer one taking over where enough known pixels lie near it (a
     strip far from any measurement gets the nearest ones' value, not the frame's median);
-    `default` where none lies within the coarsest."""
+    `default` where none lies within the coarsest. Each scale's local mean is shrunk towards
+    `default` by how far it stands out of its own noise (its spread over the measurements
+    near it, over their number): scattered SfM points that agree with the field on average
+    move it nowhere (the bench colon's: 28% of them 5% off the truth), points that disagree
+    with it together move it (the sinus's field lay 10% off its points)."""
     weight = where.astype(np.float32)
-    wv = weight * values.astype(np.float32)
-    out = np.full(values.shape, default, np.float32)
+    v = values.astype(np.float32) - default
+    wv, wvv = weight * v, weight * v * v
+    out = np.zeros(values.shape, np.float32)
     for k in (3, 2, 1, 0):
         s = sigma_px * 4.0**k
-        num = cv2.GaussianBlur(wv, (0, 0), s)
         den = cv2.GaussianBlur(weight, (0, 0), s)
-        floor = PRIOR_WEIGHT / (2 * np.pi * s**2)  # a fraction of one pixel at the peak
-        trust = den / (den + floor)
-        out = trust * (num / np.maximum(den, 1e-12)) + (1 - trust) * out
-    return out
+        mean = cv2.GaussianBlur(wv, (0, 0), s) / np.maximum(den, 1e-12)
+        var = np.maximum(cv2.GaussianBlur(wvv, (0, 0), s) / np.maximum(den, 1e-12) - mean**2, 0)
+        count = den * (2 * np.pi * s**2)  # measurements within about one sigma
+        noise = SIGNIFICANCE**2 * var / np.maximum(count, 1.0)
+        mean = mean * mean**2 / np.maximum(mean**2 + noise, 1e-12)
+        trust = count / (count + PRIOR_WEIGHT)
+        out = trust * mean + (1 - trust) * out
+    return out + default
 
 
 def sparse_map(uv: np.ndarray, z: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from endopipe.pipeline.stage import StageConfig
 
@@ -46,6 +46,13 @@ class DepthConfig(StageConfig):
         "against the stereo's own 0.032; the sinus: 0.108 at the authors' points, held to "
         "its SfM points 0.097). off: the field's depth as it is.",
     )
+
+    @field_validator("anchor", mode="before")
+    @classmethod
+    def _yaml_off(cls, value: object) -> object:
+        """`--set depth.anchor=off` reaches here as YAML's false."""
+        return {False: "off", True: "auto"}.get(value, value) if isinstance(value, bool) else value
+
     anchor_sigma_stereo: float = Field(
         0.025,
         gt=0,
