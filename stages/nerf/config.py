@@ -149,11 +149,14 @@ class FieldConfig(_Section):
         "poses stage found the scene moving under a still camera (tissue pulled, cut or "
         "breathing; instruments), false for a rigid scene.",
     )
-    appearance_time: bool = Field(
-        False,
+    appearance_time: bool | Literal["auto"] = Field(
+        "auto",
         description="A rigid geometry whose albedo changes with time (space-time planes on "
         "the appearance grid only; time_nodes as a dynamic field's): what the camera sees of "
-        "a fixed surface changing over the clip (its light, its exposure, a small motion).",
+        "a fixed surface changing over the clip (its light, its exposure, the tissue's small "
+        "motions). auto: on for a rigid TensoRF field. Real Hamlyn rectified01, all 196 "
+        "frames, 1500 steps: held-out PSNR 31.4 dB against 20.9 rigid; the sinus window 21.9 "
+        "against 17.0; the bench colon 27.9 against 27.6 with the same depth.",
     )
     change_weight: float = Field(
         0.001,

@@ -361,6 +361,11 @@ def make_field(cfg: FieldConfig, box_extent: tuple[float, float, float]) -> Radi
             "nerf.field.dynamic=true needs the tensorf encoding and density geometry; set "
             "nerf.field.encoding=tensorf and nerf.field.geometry=density"
         )
+    if cfg.appearance_time is True and cfg.encoding != "tensorf":
+        raise ConfigError(
+            "nerf.field.appearance_time=true needs the tensorf encoding; set "
+            "nerf.field.encoding=tensorf or nerf.field.appearance_time=auto"
+        )
     if cfg.encoding == "tensorf":
         return TensorfField(cfg, box_extent)
     if cfg.encoding == "hashgrid":

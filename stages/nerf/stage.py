@@ -383,12 +383,21 @@ def choose_dynamic(cfg: NerfConfig, poses, n_frames: int, log) -> NerfConfig:
     nodes = cfg.field.time_nodes or int(np.clip(round(n_frames / 2), 4, 64))
     if dynamic is False:
         update: dict = {"dynamic": False}
-        if cfg.field.appearance_time:
+        timed = cfg.field.appearance_time
+        if timed == "auto":
+            timed = cfg.field.encoding == "tensorf"
+        update["appearance_time"] = timed
+        if timed:
             update["time_nodes"] = nodes
             log(f"albedo over time: {nodes} time nodes over {n_frames} frames, a rigid geometry")
         return cfg.model_copy(update={"field": cfg.field.model_copy(update=update)})
     field = cfg.field.model_copy(
-        update={"dynamic": True, "time_nodes": nodes, "geometry": "density"}
+        update={
+            "dynamic": True,
+            "time_nodes": nodes,
+            "geometry": "density",
+            "appearance_time": False,  # the whole field changes with time already
+        }
     )
     loss = cfg.loss.model_copy(update={"geo": False})
     log(f"dynamic field: {nodes} time nodes over {n_frames} frames; multi-frame depth off")
