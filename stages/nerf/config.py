@@ -33,23 +33,8 @@ class TensorfConfig(_Section):
     res_init: int = Field(
         96, ge=8, description="Grid nodes along the scene box's longest side at the start."
     )
-    res_final: Annotated[int, Field(ge=8)] | Literal["auto"] = Field(
-        "auto",
-        description="Grid nodes along the longest side after the last upsampling; auto: enough "
-        "that a cell at the seen surface (the SfM points) spans cell_px pixels, at most "
-        "max_nodes (384 when there are no SfM points to measure it by).",
-    )
-    cell_px: float = Field(
-        1.5, gt=0, description="auto: the cell's width at the seen surface, in pixels."
-    )
-
-    @property
-    def final_nodes(self) -> int:
-        """res_final as a number (auto not resolved for a case: 384)."""
-        return 384 if self.res_final == "auto" else int(self.res_final)
-
-    max_nodes: int = Field(
-        640, ge=8, description="auto: at most this many nodes along the longest side."
+    res_final: int = Field(
+        384, ge=8, description="Grid nodes along the longest side after the last upsampling."
     )
     upsample_at: list[float] = Field(
         default_factory=lambda: [0.15, 0.3, 0.45],
@@ -185,25 +170,7 @@ class FieldConfig(_Section):
         description="auto: warp when at least this share of the SfM points lies in the core.",
     )
     warp_core_pad: float = Field(
-        1.5,
-        ge=0,
-        description="Linear core (core: path): the camera path's box grown by this many radii.",
-    )
-    core: Literal["points", "path"] = Field(
-        "points",
-        description="Where the warped grid keeps its fine cells (its linear core): points: "
-        "the box of the surface the cameras saw (the SfM points, the middle core_share of "
-        "them on every axis, grown by a tenth), path: around the camera path (warp_core_pad). "
-        "Without SfM points: path.",
-    )
-    core_share: float = Field(
-        0.9, gt=0, le=1, description="core points: the share of the SfM points it holds."
-    )
-    core_soft: float = Field(
-        0.25,
-        gt=0,
-        description="core points: beyond the core, cells double in size every this share of "
-        "the core's longest side (warp_soft's part for core path).",
+        1.5, ge=0, description="Linear core: the camera path's box grown by this many radii."
     )
     warp_soft: float = Field(
         2.0, gt=0, description="Beyond the core, cells double in size every ~this many radii."

@@ -177,9 +177,9 @@ class TensorfField(RadianceField):
         """(progress, resolution) of every upsampling: log-spaced sizes up to res_final."""
         t = self.cfg.tensorf
         k = len(t.upsample_at)
-        if k == 0 or t.final_nodes == t.res_init:
+        if k == 0 or t.res_final == t.res_init:
             return []
-        sizes = torch.linspace(math.log(t.res_init), math.log(t.final_nodes), k + 1).exp()
+        sizes = torch.linspace(math.log(t.res_init), math.log(t.res_final), k + 1).exp()
         return [
             (float(f), self._res(int(round(float(s)))))
             for f, s in zip(t.upsample_at, sizes[1:], strict=True)

@@ -104,16 +104,6 @@ class SceneBox:
         y = (np.asarray(g, np.float64) + 1.0) * (ghi - glo) / 2.0 + glo
         return self.scene_to_world_np(self.unwarp_np(y))
 
-    def cell_world_at(self, points: np.ndarray, longest: int) -> np.ndarray:
-        """The grid's cell edge at world `points` (N, 3), in world units, for `longest` nodes
-        along the box's longest warped side: the largest over the three axes (a warped axis's
-        cells grow with the distance beyond the core)."""
-        x = self.world_to_scene_np(np.asarray(points, np.float64).reshape(-1, 3))
-        a, b, k = self.core_lo, self.core_hi, self.soft
-        beyond = np.maximum(np.maximum(a - x, x - b), 0.0)
-        stretch = (k + beyond) / k  # d(scene) / d(warped): 1 inside the core
-        return (self.cell_scene(longest) * stretch).max(1) * self.scale
-
     def cell_scene(self, longest: int) -> float:
         """Edge of a grid cell inside the core, in scene units, for `longest` nodes."""
         return float(self.extent.max() / max(longest - 1, 1))
@@ -187,67 +177,29 @@ class SceneBox:
         pad: float = 0.03,
         core_pad: float | None = None,
         soft: float = 1.0,
-        view: np.ndarray | None = None,
-        seen: np.ndarray | None = None,
-        seen_share: float = 0.9,
-        seen_soft: float = 0.25,
     ) -> SceneBox:
-        """Axes from the camera centres' principal directions (and the cameras' mean optical
-        axis `view`, when they look sideways); box around `points` (world).
+        """Axes from the camera centres' principal directions; box around `points` (world).
 
         With `core_pad` (in radii = scene units), the grid is warped outside the camera path's
-        bounding box grown by core_pad; with the surface the cameras saw (`seen`, world points:
-        the SfM points), outside the box holding the middle `seen_share` of them on every axis,
-        grown by a tenth. `soft` sets how fast the cells grow beyond the core (they double
-        every `soft` scene units); with `seen`, every `seen_soft` of the core's longest side,
-        so the far space the box reaches (a tube's open ends, 12 radii) takes a bounded share
-        of the nodes: with the camera path's `soft` of 2 radii the real Hamlyn wall's core got
-        a sixth of them."""
+        bounding box grown by core_pad; `soft` sets how fast the cells grow beyond it."""
         centres = np.asarray(centres, np.float64).reshape(-1, 3)
         centre = centres.mean(0)
-        rotation = scene_axes(centres - centre, view)
+        rotation = np.eye(3)
+        if len(centres) >= 3:
+            _, s, vt = np.linalg.svd(centres - centre, full_matrices=True)
+            if s[0] > 1e-9:
+                # Principal direction as the scene z axis (the tube's long axis).
+                rotation = np.stack([vt[1], vt[2], vt[0]], 1)
+                if np.linalg.det(rotation) < 0:
+                    rotation[:, 0] = -rotation[:, 0]
         box = cls(centre, rotation, scale, np.zeros(3), np.ones(3))
         pts = box.world_to_scene_np(np.concatenate([np.asarray(points).reshape(-1, 3), centres]))
         lo, hi = pts.min(0), pts.max(0)
         margin = pad * (hi - lo).max()
         lo, hi = lo - margin, hi + margin
-        if core_pad is None and seen is None:
+        if core_pad is None:
             return cls(centre, rotation, scale, lo, hi)
-        if seen is not None:
-            x = box.world_to_scene_np(np.asarray(seen, np.float64).reshape(-1, 3))
-            tail = 50.0 * (1.0 - seen_share)
-            core_lo, core_hi = np.percentile(x, tail, axis=0), np.percentile(x, 100 - tail, axis=0)
-            grow = 0.1 * (core_hi - core_lo).max()
-            core_lo, core_hi = core_lo - grow, core_hi + grow
-            soft = seen_soft * float((core_hi - core_lo).max())
-        else:
-            cam = box.world_to_scene_np(centres)
-            core_lo, core_hi = cam.min(0) - core_pad, cam.max(0) + core_pad
-        lo, hi = np.minimum(lo, core_lo), np.maximum(hi, core_hi)
+        cam = box.world_to_scene_np(centres)
+        core_lo = np.maximum(cam.min(0) - core_pad, lo)
+        core_hi = np.minimum(cam.max(0) + core_pad, hi)
         return cls(centre, rotation, scale, lo, hi, core_lo, core_hi, soft)
-
-
-def scene_axes(offsets: np.ndarray, view: np.ndarray | None = None) -> np.ndarray:
-    """The scene's axes (columns, world) from the camera centres' offsets from their mean: the
-    path's principal direction as z (a tube's long axis; the VM grid's lines follow it). A
-    camera that looks sideways of its path (a laparoscope panning over a wall, |view . z| under
-    0.7) gets x along its mean optical axis `view`, so the wall it sees lies in the yz plane of
-    the grid: a texture on a plane at an angle to every grid plane needs many VM components,
-    one in a grid plane needs one (the real Hamlyn clip's wall lay 33 degrees off)."""
-    rotation = np.eye(3)
-    if len(offsets) < 3:
-        return rotation
-    _, s, vt = np.linalg.svd(offsets, full_matrices=True)
-    if s[0] <= 1e-9:  # a camera that stands still: the world's axes
-        return rotation
-    rotation = np.stack([vt[1], vt[2], vt[0]], 1)
-    z = rotation[:, 2]
-    if view is not None and np.linalg.norm(view) > 0:
-        v = np.asarray(view, np.float64) / np.linalg.norm(view)
-        if abs(float(v @ z)) < 0.7:
-            x = v - (v @ z) * z
-            x /= np.linalg.norm(x)
-            rotation = np.stack([x, np.cross(z, x), z], 1)
-    if np.linalg.det(rotation) < 0:
-        rotation[:, 0] = -rotation[:, 0]
-    return rotation

@@ -70,8 +70,7 @@ def fit_box(
     the SfM `points` lie mostly near the camera path, where the warp keeps its fine cells
     (C3VD: 14% of them do, the bench colon 91%)."""
     centres = np.array([c[:3, 3] for c in c2w])
-    view = np.mean([c[:3, 2] for c in c2w], 0)
-    box0 = SceneBox.fit(centres, float(prior.typical_radius), centres, view=view)
+    box0 = SceneBox.fit(centres, float(prior.typical_radius), centres)
     box0.lo, box0.hi = np.full(3, -1.0), np.full(3, 1.0)
     pb = PriorBounds(prior, box0, cfg)
     h, w = hw
@@ -85,7 +84,6 @@ def fit_box(
         _, far, _ = pb.bounds(o, d, pb.margin, wall=True, past_points=True)
         pts.append(box0.scene_to_world_np((o + far[:, None] * d).numpy()))
     f = cfg.field
-    seen = points if f.core == "points" and points is not None and len(points) >= 20 else None
 
     def fit(warp: bool) -> SceneBox:
         return SceneBox.fit(
@@ -94,10 +92,6 @@ def fit_box(
             np.concatenate(pts),
             core_pad=f.warp_core_pad if warp else None,
             soft=f.warp_soft,
-            view=view,
-            seen=seen if warp else None,
-            seen_share=f.core_share,
-            seen_soft=f.core_soft,
         )
 
     box = fit(f.warp is not False)
@@ -105,51 +99,11 @@ def fit_box(
     if f.warp == "auto" and share is not None and share < f.warp_min_inside:
         box = fit(False)
     if log is not None and share is not None and f.warp == "auto":
-        where = (
-            "in the box of the surface they saw"
-            if seen is not None
-            else f"within {f.warp_core_pad:g} radii of the camera path's box"
-        )
-        log(f"grid warp {'on' if box.warped else 'off'}: {share:.0%} of the SfM points lie {where}")
-    return box
-
-
-def choose_resolution(
-    cfg: NerfConfig,
-    box: SceneBox,
-    points: np.ndarray | None,
-    c2w: list[np.ndarray],
-    camera: Camera,
-    log,
-) -> NerfConfig:
-    """tensorf.res_final auto: enough nodes that a cell at the seen surface (the SfM points, at
-    their distance from the nearest camera) spans `cell_px` pixels, within [res_init,
-    max_nodes]. A cell several pixels wide cannot hold what the camera resolved: at 384 nodes
-    the real Hamlyn clip's cells spanned 9 pixels, the sinus's 18 (unwarped, 192 nodes), and
-    their renders were smears."""
-    t = cfg.field.tensorf
-    if t.res_final != "auto":
-        return cfg
-    nodes = t.max_nodes
-    if points is not None and len(points) >= 20:
-        centres = np.array([c[:3, 3] for c in c2w])
-        near = np.min(
-            np.linalg.norm(
-                points[:, None, :] - centres[None, :: max(1, len(centres) // 50)], axis=-1
-            ),
-            1,
-        )
-        pixel = float(np.median(near)) / camera.fx  # world units a pixel spans there
-        nodes = int(np.ceil(box.extent.max() * box.scale / (t.cell_px * pixel))) + 1
-    res = int(np.clip(nodes, t.res_init, t.max_nodes))
-    if points is not None and len(points) >= 20:
-        px = np.median(box.cell_world_at(points, res)) / pixel
         log(
-            f"grid: {res} nodes along the longest side, cells of {px:.1f} px at the seen "
-            f"surface (median; nerf.field.tensorf.cell_px {t.cell_px:g}, at most {t.max_nodes})"
+            f"grid warp {'on' if box.warped else 'off'}: {share:.0%} of the SfM points lie "
+            f"within {f.warp_core_pad:g} radii of the camera path's box"
         )
-    tensorf = t.model_copy(update={"res_final": res})
-    return cfg.model_copy(update={"field": cfg.field.model_copy(update={"tensorf": tensorf})})
+    return box
 
 
 def regularise_far_view(cfg: NerfConfig, box: SceneBox, log) -> NerfConfig:
@@ -161,18 +115,15 @@ def regularise_far_view(cfg: NerfConfig, box: SceneBox, log) -> NerfConfig:
     fv = cfg.far_view
     tv = max(cfg.field.tensorf.tv_weight, fv.tv_weight)
     distortion = max(cfg.loss.distortion_weight, fv.distortion_weight)
-    t = cfg.field.tensorf
-    update: dict = {"tv_weight": tv}
-    most = t.max_nodes if t.res_final == "auto" else t.res_final
+    res = cfg.field.tensorf.res_final
     if fv.res_final is not None:
-        most = max(min(most, fv.res_final), t.res_init)
-        update["max_nodes" if t.res_final == "auto" else "res_final"] = most
-    tensorf = t.model_copy(update=update)
+        res = max(min(res, fv.res_final), cfg.field.tensorf.res_init)
+    tensorf = cfg.field.tensorf.model_copy(update={"tv_weight": tv, "res_final": res})
     field = cfg.field.model_copy(update={"tensorf": tensorf})
     loss = cfg.loss.model_copy(update={"distortion_weight": distortion})
     log(
-        f"unwarped grid: density TV {tv:g}, distortion loss {distortion:g}, at most {most} "
-        "nodes along the longest side (nerf.far_view)"
+        f"unwarped grid: density TV {tv:g}, distortion loss {distortion:g}, {res} nodes along "
+        "the longest side (nerf.far_view)"
     )
     return cfg.model_copy(update={"field": field, "loss": loss})
 
@@ -454,10 +405,8 @@ def set_up_training(
     cfg = still_camera_settings(cfg, poses, log)
     cfg = choose_dynamic(cfg, poses, len(ids), log)
     cfg = choose_geometry(cfg, prior, log)
-    points = poses.points()
-    box = fit_box(c2w, k, images.shape[1:3], prior, cfg, points, log)
+    box = fit_box(c2w, k, images.shape[1:3], prior, cfg, poses.points(), log)
     cfg = regularise_far_view(cfg, box, log)
-    cfg = choose_resolution(cfg, box, points, c2w, k, log)
     frames = FrameSet(images, masks, np.stack([box.c2w_to_scene(c) for c in c2w]), k, ids, device)
     train_ids, held_ids = holdout_split(ids, cfg.train.holdout_every)
     pos = {i: p for p, i in enumerate(ids)}
