@@ -23,7 +23,7 @@ from endopipe.stages.poses.view import PosesView
 
 
 def evaluate(
-    model, prior, ingest, k, c2w, ids, held_ids, train_ids, cfg: NerfConfig, ctx
+    model, prior, ingest, k, c2w, ids, held_ids, train_ids, cfg: NerfConfig, ctx, rests_on: str
 ) -> NerfMetrics:
     """Render the held-out frames (PSNR on usable pixels, depth metrics against ground truth)
     and a few training frames (the fit), beside the neighbour average of the held-out ones."""
@@ -76,7 +76,7 @@ def evaluate(
         result["train_psnr"] = round(float(np.nanmean(fit)), 3)
         result["fit_frames"] = fitted
     verdict = fit_verdict(
-        result.get("train_psnr"), result.get("psnr"), result.get("neighbour_psnr")
+        result.get("train_psnr"), result.get("psnr"), result.get("neighbour_psnr"), rests_on
     )
     result["fit"] = verdict.word
     result["fit_said"] = verdict.said

@@ -26,10 +26,13 @@ class FitVerdict(BaseModel):
 
 
 def fit_verdict(
-    train_psnr: float | None, heldout_psnr: float | None, neighbour_psnr: float | None
+    train_psnr: float | None,
+    heldout_psnr: float | None,
+    neighbour_psnr: float | None,
+    rests_on: str = "the SfM points, the stereo and the prior",
 ) -> FitVerdict:
     """Judge the field's fit from its training fit and held-out PSNR (dB); the neighbour
-    average is the baseline the line quotes."""
+    average is the baseline the line quotes, `rests_on` what else shaped its depth."""
     if train_psnr is None:
         return FitVerdict(word="not measured", said="no training frame was rendered")
     beside = f", the neighbour average {neighbour_psnr:.1f}" if neighbour_psnr is not None else ""
@@ -41,7 +44,7 @@ def fit_verdict(
         return FitVerdict(
             word="not learned",
             said=f"the field did not learn its images ({figures}; under {LEARNED_DB:g} dB): its "
-            "depth rests on the SfM points, the stereo and the prior, not on the images",
+            f"depth rests on {rests_on}, not on the images",
         )
     if heldout_psnr is not None and heldout_psnr < train_psnr - GENERALISE_DB:
         return FitVerdict(

@@ -512,6 +512,7 @@ class Nerf(Stage):
             run.train_ids,
             cfg,
             ctx,
+            trainer.depth_sources(),
         )
         ctx.log(evaluation.fit_said)
         (ctx.out / CHECKPOINT).unlink(missing_ok=True)

@@ -204,6 +204,21 @@ class Trainer:
             )
         )
 
+    def depth_sources(self) -> str:
+        """What besides the images shaped the field's depth, in words (the fit's line)."""
+        lc = self.cfg.loss
+        parts = [
+            name
+            for name, used in (
+                ("the SfM points", self.sparse is not None and lc.sparse_weight > 0),
+                ("the stereo", self.stereo is not None and lc.stereo_weight > 0),
+                ("the depth prior", self.prior_depth is not None and self.prior_depth.weight > 0),
+                (f"the {self.pb.prior.kind} prior", self.pb.prior.kind != "none" and lc.prior),
+            )
+            if used
+        ] or ["its smoothness alone"]
+        return parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
+
     def save_checkpoint(self) -> None:
         state = {
             "step": self.step_i,
