@@ -127,12 +127,14 @@ class Anchor:
 
     @classmethod
     def open(cls, mode: str, ingest, poses, dense_share: float, points_share: float) -> Anchor:
-        """`mode` off, or auto: the stereo when the ingest has it and the poses are metric, the
-        SfM points when the poses have tracks."""
+        """`mode` off; auto: the stereo when the ingest has it and the poses are metric; points:
+        that, else the SfM points when the poses have tracks."""
         if mode == "off":
             return cls(None, lambda i: None, 0.0)
         if ingest.has_stereo and poses.metric:
             return cls("stereo", ingest.stereo_depth, dense_share * ingest.width)
+        if mode != "points":
+            return cls(None, lambda i: None, 0.0)
         obs = poses.observations(ingest.index_by_name())
         if obs is None or not len(obs.frame):
             return cls(None, lambda i: None, 0.0)
