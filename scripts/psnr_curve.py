@@ -4,8 +4,8 @@ would take the field.
 Run: `.venv/bin/python scripts/psnr_curve.py WORKDIR/CASE [--every 250] [--frames 4]
 [--threads 1] [--set nerf.key=value ...] [--csv OUT.csv] [--renders DIR]` (a case run up to
 centerline or further). Sets up the trainer as the nerf stage does (`set_up_training`, the
-case's own config.yaml and the `--set`s), trains, and every `--every` steps renders `--frames` held-out
-frames and as many training frames (spread over the sequence) in full, scoring each on the
+case's own config.yaml and the `--set`s), trains, and every `--every` steps renders `--frames`
+held-out frames and as many training frames (spread over the sequence) in full, scoring each on the
 pixels the stage's PSNR counts (the ingest masks and the lens). Prints one row per point:
 step, training seconds so far, training PSNR, held-out PSNR; the neighbour average of the same
 held-out frames is printed once; `--renders` writes each scored frame beside its last render.

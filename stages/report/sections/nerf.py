@@ -9,7 +9,6 @@ from endopipe.stages.report.load import CaseData
 from endopipe.stages.report.sections.common import ReportInfo
 from endopipe.stages.report.sections.scores import score_table
 
-
 #: The fit's word (nerf/fit.py) and its badge's colour.
 FIT_BADGE = {
     "learned": ("learned its images", "ok"),
