@@ -14,7 +14,7 @@ import torch
 import trimesh
 from rich.console import Console
 
-from endopipe.stages.camera import Camera, image_directions, project
+from endopipe.stages.camera import Camera, image_directions, look_at, project
 from endopipe.stages.centerline.prior import TubePrior, save_prior
 from endopipe.stages.depth.view import DepthView
 from endopipe.stages.mesh.build import fuse_depth
@@ -295,6 +295,53 @@ def test_tsdf_of_a_distorted_camera_follows_its_lens():
     # The surface reaches the image's edges: it spans the lens's field of view, not less.
     uv, _ = project(k, v, np.eye(4))
     assert uv[:, 0].min() < 8 and uv[:, 0].max() > 151
+
+
+def test_fused_mesh_lies_on_the_depth_maps_pixels():
+    """The depth maps back-projected through their own cameras lie on the fused mesh to within
+    0.1% of the depth (median over pixels): the fusion reads each pixel where our convention puts
+    it (pixel centres at integer coordinates). 24 views from inside a sphere of radius 50, every
+    slope of the wall: with open3d given our matrix unchanged the median is 0.17%; 0.04% now."""
+    import open3d as o3d
+
+    radius = 50.0
+    k = Camera(width=96, height=72, fx=80.0, fy=80.0, cx=47.5, cy=35.5)
+    dirs = image_directions(k)  # z = 1 through every pixel centre
+    rng = np.random.default_rng(0)
+
+    def along_ray(c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        d = dirs @ c2w[:3, :3].T
+        return np.broadcast_to(c2w[:3, 3], d.shape), d
+
+    frames = []
+    for _ in range(24):
+        at, to = rng.normal(size=3), rng.normal(size=3)
+        up = np.array([0.0, -1.0, 0.0])
+        c2w = look_at(at * 20 / np.linalg.norm(at), to * radius / np.linalg.norm(to), up)
+        o, d = along_ray(c2w)
+        a, b, c = (d * d).sum(-1), 2 * (d * o).sum(-1), (o * o).sum(-1) - radius**2
+        depth = (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a)  # z-depth: d has z = 1
+        frames.append(DepthFrame(depth.astype(np.float32), c2w))
+    mesh, used = tsdf_fuse(frames, k, voxel=0.5, sdf_trunc=2.0, depth_trunc=200.0, colour=False)
+    assert used == 24
+
+    surface = o3d.t.geometry.TriangleMesh()
+    surface.vertex.positions = o3d.core.Tensor(mesh.vertices.astype(np.float32))
+    surface.triangle.indices = o3d.core.Tensor(mesh.faces.astype(np.int32))
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(surface)
+    rel = []
+    for fr in frames:
+        o, d = along_ray(fr.c2w)
+        n = np.linalg.norm(d, axis=-1, keepdims=True)
+        rays = np.concatenate([o, d / n], -1).reshape(-1, 6).astype(np.float32)
+        hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().reshape(fr.depth.shape)
+        z = hit / n[..., 0]
+        seen = np.isfinite(z)
+        rel.append(np.abs(z - fr.depth)[seen] / fr.depth[seen])
+    rel = np.concatenate(rel)
+    assert rel.size > 0.9 * 24 * 96 * 72
+    assert np.median(rel) < 0.001, np.median(rel)
 
 
 def test_non_metric_reconstruction_is_aligned_by_sim3(fused, synth_case, tmp_path):

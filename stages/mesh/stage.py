@@ -76,7 +76,7 @@ class Mesh(Stage):
 
     name = "mesh"
     needs = ("ingest", "poses", "centerline", "nerf", "depth")
-    version = 5  # 5: a scene that moves gets a surface per chosen time; 4: rigid alignment
+    version = 6  # 6: fused on the depth maps' own pixels; 5: a surface per chosen time
     Config = MeshConfig
     Summary = MeshSummary
     View = MeshView

@@ -63,7 +63,7 @@ def tsdf_fuse(
                 resamplers[key] = PinholeResampler.of(k)
             fr, k = resamplers[key](fr), resamplers[key].pinhole
             h, w = fr.depth.shape
-        K = o3c.Tensor(k.matrix())
+        K = o3c.Tensor(_open3d_matrix(k))
         w2c = o3c.Tensor(np.linalg.inv(np.asarray(fr.c2w, np.float64)))
         depth = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(fr.depth, np.float32)))
         try:
@@ -132,6 +132,17 @@ class PinholeResampler:
         depth = remap(np.ascontiguousarray(frame.depth, np.float32))
         rgb = remap(np.ascontiguousarray(frame.rgb)) if frame.rgb is not None else None
         return DepthFrame(depth, frame.c2w, rgb)
+
+
+def _open3d_matrix(camera: Camera) -> np.ndarray:
+    """The pinhole matrix in the convention open3d's integration reads: it looks a voxel's
+    depth up at the integer part of its projection (pixel u covering [u, u+1)), where ours puts
+    pixel u's centre at u (docs/formats.md); the principal point half a pixel on keeps each voxel
+    on the pixel it projects into."""
+    k = np.asarray(camera.matrix(), np.float64).copy()
+    k[0, 2] += 0.5
+    k[1, 2] += 0.5
+    return k
 
 
 def _voxel_grid(voxel: float, block_resolution: int, colour: bool) -> Any:
