@@ -114,6 +114,30 @@ def test_one_line_values_take_c_as_the_affine_value_near_one(tmp_path: Path) -> 
     assert lens.poly[0] == 769.24 and lens.width == 1350
 
 
+def test_calibration_folder_as_c3vd_ships_it_reads_the_values_by_their_names(tmp_path: Path):
+    """C3VD's `cfhq190l_omnidirectional_params/` beside the sequences holds a format file (the
+    fields' names) and a values file: the values are found (not the format file, which holds no
+    numbers), and read by the names the format file gives them, here with d and e in an order the
+    name-less guess would get the other way round."""
+    from endopipe.stages.io.c3vd import find_calibration
+
+    params = tmp_path / "cfhq190l_omnidirectional_params"
+    params.mkdir()
+    (params / "cfhq190l_omnidirectional_format.txt").write_text(
+        "Width Height cx cy a0 a2 a3 a4 e c d\n"
+    )
+    (params / "cfhq190l_omnidirectional_values.txt").write_text(
+        "1350 1080 678.54 542.98 769.24 -0.00081277 6.2567e-07 -1.1966e-09 -0.003 0.99999 0.0029\n"
+    )
+    seq = tmp_path / "cecum_t1_a"
+    seq.mkdir()
+    found = find_calibration(seq)
+    assert found == params / "cfhq190l_omnidirectional_values.txt"
+    lens = read_ocam(found)
+    assert lens.stretch == [[0.99999, -0.003], [0.0029, 1.0]]
+    assert lens.cx == 678.54 and lens.poly[0] == 769.24 and "format" in lens.source
+
+
 def test_ocamcalib_export_reads_with_its_axes(tmp_path: Path) -> None:
     text = """#polynomial coefficients for the DIRECT mapping function (ocam_model.ss in MATLAB).
 

@@ -13,9 +13,10 @@ cecum_t1_a/
 
 The scope's calibration is one for the whole data set (Scaramuzza's omnidirectional model, read
 by `ocam.read_ocam`): `calib_results.txt`, `camera_intrinsics.txt`, `config.ini` or
-`*omnidirectional*.txt`, in the sequence folder, its parent or grandparent, or in a
-`*omnidirectional_params/` folder there. Without intrinsics.json the lens is OpenCV's fisheye
-fitted to it (`ocam.fit_fisheye`), and its residual is said in one line.
+`*omnidirectional*.txt` (the values; the `*_format.txt` beside them names them), in the sequence
+folder, its parent or grandparent, or in a `*omnidirectional_params/` folder there. Without
+intrinsics.json the lens is OpenCV's fisheye fitted to it (`ocam.fit_fisheye`), and its residual
+is said in one line.
 
 `coverage_mesh.obj` is DurrLab/C3VD's `rendergt` output (RenderingModule::writeOBJ): the model's
 vertices moved by the registration into the frame of pose.txt, its texture coordinates the
@@ -113,7 +114,8 @@ def find_calibration(seq: Path) -> Path | None:
             for name in CALIBRATION_FILES:
                 if (where / name).is_file():
                     return where / name
-            found = sorted(where.glob(CALIBRATION_GLOB))
+            # The values, not the format file that names them (ocam.read_ocam reads it too).
+            found = sorted(p for p in where.glob(CALIBRATION_GLOB) if "format" not in p.name)
             if found:
                 return found[0]
     return None

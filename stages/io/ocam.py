@@ -20,9 +20,10 @@ Files read (`read_ocam`):
   casts (x'', y'', a0 + a2 rho^2 + a3 rho^3 + a4 rho^4) with stretch glm::mat2(c, d, e, 1),
   column-major: [[c, e], [d, 1]]; a0 is positive.
 - one line of 11 or 12 numbers (C3VD's `*_omnidirectional_values.txt`, `camera_intrinsics.txt`):
-  width, height, cx, cy, a0, [a1,] a2, a3, a4 and the affine three. Their order is not documented
-  by the release: c is taken as the one near 1 (an aspect ratio), d and e as the other two in
-  file order (each ~0.003 in C3VD's calibration: their order moves an edge pixel ~1.5 px).
+  width, height, cx, cy, a0, [a1,] a2, a3, a4 and the affine three, named in that order by the
+  `*_omnidirectional_format.txt` C3VD ships beside them. Without a format file naming them: c is
+  taken as the one near 1 (an aspect ratio), d and e as the other two in file order (each ~0.003
+  in C3VD's calibration: their order moves an edge pixel ~1.5 px).
 """
 
 from __future__ import annotations
@@ -217,6 +218,10 @@ def _one_line(text: str, path: Path) -> OcamLens:
     nums = [
         x for ln in text.splitlines() if ln.strip() and not ln.startswith("#") for x in _numbers(ln)
     ]
+    named = _format_names(path, len(nums))
+    if named is not None:
+        values = dict(zip(named, nums, strict=True))
+        return _durrlab(values, values.get("a1", 0.0), f"{path} (named by {named_by(path)})")
     if len(nums) not in (11, 12):
         raise ValueError(f"{len(nums)} numbers, not 11 (or 12 with a1)")
     head = dict(zip(("width", "height", "cx", "cy", "a0"), nums[:5], strict=True))
@@ -228,6 +233,26 @@ def _one_line(text: str, path: Path) -> OcamLens:
     d, e = (x for i, x in enumerate(affine) if i != ci)
     values = {**head, "a2": a2, "a3": a3, "a4": a4, "c": affine[ci], "d": d, "e": e}
     return _durrlab(values, a1, f"{path} (one line of values; c the affine value near 1)")
+
+
+def named_by(values: Path) -> str:
+    """The format file C3VD ships beside its values file (`X_values.txt` -> `X_format.txt`)."""
+    return values.name.replace("values", "format")
+
+
+def _format_names(values: Path, count: int) -> list[str] | None:
+    """The values' names in file order, from the format file beside them (C3VD's
+    `*_omnidirectional_format.txt`: the same fields, named); None when there is none, or when its
+    names are not the model's or not as many as the values."""
+    if "values" not in values.name or not (values.parent / named_by(values)).is_file():
+        return None
+    text = (values.parent / named_by(values)).read_text(errors="replace")
+    names = [re.sub(r"[^a-z0-9]", "", t.lower()) for t in re.split(r"[\s,;]+", text) if t]
+    names = [n for n in names if n]
+    need = {"width", "height", "cx", "cy", "a0", "a2", "a3", "a4", "c", "d", "e"}
+    if len(names) != count or not need <= set(names) or not set(names) <= need | {"a1"}:
+        return None
+    return names
 
 
 def _durrlab(v: dict[str, float], a1: float, source: str) -> OcamLens:
