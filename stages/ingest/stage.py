@@ -10,7 +10,6 @@ from rich.markup import escape
 
 from endopipe.pipeline.errors import InputError
 from endopipe.pipeline.stage import Stage, StageContext, write_json
-from endopipe.stages.camera import Camera
 from endopipe.stages.ingest.config import IngestConfig
 from endopipe.stages.ingest.masks import combine, fov_mask_for_sequence, specular_mask
 from endopipe.stages.ingest.prior_frames import FramePrior
@@ -29,6 +28,7 @@ from endopipe.stages.ingest.view import (
     StereoInfo,
 )
 from endopipe.stages.io.added import AddedInputs
+from endopipe.stages.io.calibration_check import CalibrationFit, fit_to_frames
 from endopipe.stages.io.ground_truth import Coverage, coverage
 from endopipe.stages.io.input_source import Frame, InputSource
 from endopipe.stages.io.sources import open_input
@@ -41,9 +41,10 @@ class Ingest(Stage):
 
     name = "ingest"
     needs = ()
-    # 8: a rig checked against its images (pairing, rows); 7: a data set's metric depth in
+    # 9: a calibration checked against the frames' size; 8: a rig checked against its images
+    # (pairing, rows); 7: a data set's metric depth in
     # stereo/; 6: the user's depth prior
-    version = 8
+    version = 9
     Config = IngestConfig
     Summary = IngestSummary
     View = IngestView
@@ -66,7 +67,10 @@ class Ingest(Stage):
         entries, spec_fracs, tool_fracs = [], [], []
         stereo_shares: list[float | None] = []
         tools = FrameTools(source.tool_masks, cfg.tools)
-        intrinsics = source_intrinsics(source, selection.source_size, size)
+        calibration = source_intrinsics(source, selection.source_size, size)
+        intrinsics = calibration.camera if calibration else None
+        if calibration and calibration.said:
+            warn(ctx, calibration.said)
         stereo = FrameStereo(source.stereo, intrinsics, cfg.stereo, source.given_depth)
         rig = stereo.check([f.source_index for f in frames], images)
         if rig is not None:
@@ -174,7 +178,11 @@ class Ingest(Stage):
             has_ground_truth=source.gt_dir is not None,
             gt_frames_without_depth=gt.frames_without_depth,
             gt_frames_without_pose=gt.frames_without_pose,
-            warnings=gt.warnings,
+            calibration_check=calibration.said if calibration else None,
+            warnings=[
+                *([calibration.said] if calibration and calibration.said else []),
+                *gt.warnings,
+            ],
         )
 
 
@@ -245,8 +253,10 @@ def warn(ctx: StageContext, message: str) -> None:
 
 def source_intrinsics(
     source: InputSource, source_size: tuple[int, int], size: tuple[int, int]
-) -> Camera | None:
-    """Camera scaled to the working resolution; they must describe the source frames."""
+) -> CalibrationFit | None:
+    """Camera scaled to the working resolution; they must describe the source frames, and are
+    checked against them (stages/io/calibration_check.py: one stated for another image size is
+    rescaled aloud, one that fits no size refused)."""
     k = source.intrinsics
     if k is None:
         return None
@@ -258,7 +268,8 @@ def source_intrinsics(
                 "give intrinsics for this video"
             )
         k = k.scaled(w, h)
-    return k.scaled(*size)
+    fit = fit_to_frames(k, f"{source.kind} input")
+    return CalibrationFit(fit.camera.scaled(*size), fit.said)
 
 
 def write_contact_sheet(

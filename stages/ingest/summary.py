@@ -37,6 +37,9 @@ class IngestSummary(Summary):
     stereo_mean_coverage: float | None = None
     #: the rig checked against its images (its pairing and rows), in one line; None: unchecked
     stereo_check: str | None = None
+    #: the calibration checked against the frames (stages/io/calibration_check.py), in one line
+    #: when it did not fit them as given (rescaled from another size, or doubtful); None: it fit
+    calibration_check: str | None = None
     #: depth maps made elsewhere (`--depth-prior`, relative; 01_ingest/depth_prior/): the
     #: folder they were read from and how many kept frames had one (None: no prior given)
     depth_prior: str | None = None
