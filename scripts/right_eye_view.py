@@ -19,7 +19,7 @@ import numpy as np
 
 from endopipe.stages.camera import lens_valid_mask
 from endopipe.stages.centerline.view import CenterlineView
-from endopipe.stages.ingest.rig_check import shifted_rows
+from endopipe.stages.ingest.rig_check import RigCheck, mended_right
 from endopipe.stages.ingest.selection import resize
 from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.io.sources import open_input
@@ -60,7 +60,7 @@ def main() -> None:
         if right is None:
             continue
         right = resize(right, (ingest.width, ingest.height))
-        right = shifted_rows(right, rig.row_shift_px if rig else 0.0).astype(np.float32) / 255.0
+        right = mended_right(right, rig or RigCheck(), k).astype(np.float32) / 255.0
         with model.at_frame(position[i]):
             rgb = render_image(model, prior, k, c2w[i] @ shift, frame=position[i])["rgb"]
         usable = lens & (right.max(-1) > 0.02)  # not the right eye's black rectification band

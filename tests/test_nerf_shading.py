@@ -131,7 +131,8 @@ def test_fitting_the_shading_recovers_a_known_photometric_model(piece):
     with torch.no_grad():
         truth.falloff.copy_(torch.tensor([-1.2, 0.0, 0.0]))
         truth.log_gamma.fill_(math.log(1.6))  # from 2.2: 27% off
-        truth.exposure.copy_(exposure + 0.5)  # the mean over trained frames is the gauge
+        # one gain for the three channels; the mean over trained frames is the gauge
+        truth.exposure.copy_((exposure + 0.5)[:, None].expand(-1, 3))
         truth.ambient_raw.fill_(math.log(math.expm1(0.05)))
         target = shade(truth, d, surface, albedo, frame)
     model = flat_wall(photometric_config(**on))[0]
@@ -145,11 +146,13 @@ def test_fitting_the_shading_recovers_a_known_photometric_model(piece):
             assert abs(float(model.gamma()) - 1.6) < 0.16, model.gamma()
         else:
             got = model._exposure_centred()
-            assert torch.allclose(got[1:], exposure[1:], atol=0.1 * 0.1), got
-            # The held-out frame has no trained exposure: it is rendered at the mean.
-            held = torch.zeros_like(frame)
+            want = exposure[1:, None].expand(-1, 3)
+            assert torch.allclose(got[1:], want, atol=0.1 * 0.1), got
+            # The held-out frame has no trained exposure: it takes its trained neighbour's (the
+            # first trained frame's, before which it comes).
+            held, neighbour = torch.zeros_like(frame), torch.ones_like(frame)
             assert torch.equal(
-                shade(model, d, surface, albedo, held), shade(model, d, surface, albedo, None)
+                shade(model, d, surface, albedo, held), shade(model, d, surface, albedo, neighbour)
             )
 
 

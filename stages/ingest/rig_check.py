@@ -17,6 +17,14 @@ rectification's own row offset); paired across moments it varies with the camera
 speed. The pairing whose per-frame values spread least wins, if it clearly beats pairing as
 named. A row offset left over is a rectification error: the right image is shifted by it before
 matching (a fraction of a pixel already costs the matcher).
+
+A rig whose calibration is a little off in rotation (a real SCARED keyframe's, 1.8 degrees: the
+matched features then lie many pixels off their rows, more towards the edges) is not mended by a
+shift. When the vertical disparity of the matches exceeds `MEND_PX` after the shift, the right
+eye's rotation relative to the left is re-estimated from the matches (the essential matrix with
+the rectified camera: five-point RANSAC) and the right image is turned by it before matching;
+the baseline's length stays the calibration's (it fixes the scale). Taken only when it brings
+the vertical disparity down to under half; said with the before and after.
 """
 
 from __future__ import annotations
@@ -27,10 +35,18 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, Field
 
+from endopipe.stages.camera import Camera
+
+#: SIFT's contrast threshold (OpenCV's default 0.04 finds a handful of features on smooth
+#: tissue; a lower one finds them where the wall is faint, and the ratio test keeps them honest).
+CONTRAST = 0.01
 #: Fewest matched features for a frame's vertical disparity to count.
 MIN_MATCHES = 20
 #: Fewest frames with a measure for the check to judge anything.
 MIN_FRAMES = 6
+#: Vertical disparity (median |row difference| of the matches, px at the working size) above
+#: which the right eye's rotation is re-estimated.
+MEND_PX = 1.0
 
 
 class RigCheck(BaseModel):
@@ -49,27 +65,47 @@ class RigCheck(BaseModel):
     )
     spread_px: float | None = Field(None, description="... paired as chosen (frame_offset)")
     frames: int = Field(0, description="frames measured")
+    right_rotation: list[list[float]] | None = Field(
+        None,
+        description="the right eye's rotation relative to the left, re-estimated from the "
+        "matches (3x3, right-from-left): the right image is turned by it before matching "
+        "(the row shift then 0); None: the calibration's rows are kept",
+    )
+    vertical_px: float | None = Field(
+        None, description="median |vertical disparity| of the matches as the rig came (px)"
+    )
+    vertical_mended_px: float | None = Field(
+        None, description="... after the row shift or the rotation the check took (px)"
+    )
     said: str = Field("", description="the finding in one line")
 
 
-def row_disparities(left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """Vertical disparities (left row minus right row, px) of features matched between two
-    grey images of one rig (SIFT, Lowe's ratio test), kept where they are plausible for a
-    rectified pair: within 8% of the height of one row, the right point not right of the left."""
-    sift = cv2.SIFT_create(1500)
+def matched_points(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Features matched between two grey images of one rig (SIFT, Lowe's ratio test): (n, 2)
+    pixel positions in each, kept where they are plausible for a rectified pair: within 8% of
+    the height of one row, the right point not right of the left."""
+    none = (np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32))
+    sift = cv2.SIFT_create(1500, contrastThreshold=CONTRAST)
     ka, da = sift.detectAndCompute(left, None)
     kb, db = sift.detectAndCompute(right, None)
     if da is None or db is None or len(ka) < 2 or len(kb) < 2:
-        return np.zeros(0)
+        return none
     pairs = cv2.BFMatcher().knnMatch(da, db, k=2)
     good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.7 * p[1].distance]
     if not good:
-        return np.zeros(0)
+        return none
     a = np.float32([ka[m.queryIdx].pt for m in good])
     b = np.float32([kb[m.trainIdx].pt for m in good])
     dy, dx = a[:, 1] - b[:, 1], a[:, 0] - b[:, 0]
     keep = (np.abs(dy) < 0.08 * left.shape[0]) & (dx > -2.0) & (dx < 0.5 * left.shape[1])
-    return dy[keep]
+    return a[keep], b[keep]
+
+
+def row_disparities(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """Vertical disparities (left row minus right row, px) of the features matched between two
+    grey images of one rig (`matched_points`)."""
+    a, b = matched_points(left, right)
+    return a[:, 1] - b[:, 1]
 
 
 def _grey(rgb: np.ndarray) -> np.ndarray:
@@ -85,27 +121,32 @@ def check_rig(
     min_gain: float = 2.0,
     min_spread_px: float = 0.1,
     min_row_px: float = 0.25,
+    camera: Camera | None = None,
 ) -> RigCheck:
     """Check the pairing and the rows of a rig on `frames` of the kept frames' `sources`
     (source indices); `left(s)` / `right(s)` give the two eyes' RGB images at the working size
     (right: None where it has none). A pairing other than as named is taken when its spread is
     at least `min_gain` times smaller and the named one's exceeds `min_spread_px`; the row shift
-    when the chosen pairing's median vertical disparity exceeds `min_row_px`."""
+    when the chosen pairing's median vertical disparity exceeds `min_row_px`; with the
+    rectified `camera` (working size), the right eye's rotation when a shift leaves the matches
+    more than MEND_PX off their rows."""
     picked = [sources[int(round(k))] for k in np.linspace(0, len(sources) - 1, frames)]
     picked = sorted(set(picked))
     lefts = {s: _grey(left(s)) for s in picked}
     by_offset: dict[int, list[float]] = {}
+    points: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
     for off in range(-max_offset, max_offset + 1):
-        rows = []
+        rows, pts = [], []
         for s in picked:
             r = right(s + off)
             if r is None:
                 continue
-            dy = row_disparities(lefts[s], _grey(r))
-            if len(dy) >= MIN_MATCHES:
-                rows.append(float(np.median(dy)))
+            a, b = matched_points(lefts[s], _grey(r))
+            if len(a) >= MIN_MATCHES:
+                rows.append(float(np.median(a[:, 1] - b[:, 1])))
+                pts.append((a, b))
         if len(rows) >= MIN_FRAMES:
-            by_offset[off] = rows
+            by_offset[off], points[off] = rows, pts
     if 0 not in by_offset:
         return RigCheck(
             frames=len(by_offset.get(0, [])),
@@ -118,6 +159,17 @@ def check_rig(
     rows = by_offset[offset]
     row = float(np.median(rows))
     shift = row if abs(row) > min_row_px else 0.0
+    a = np.concatenate([p[0] for p in points[offset]])
+    b = np.concatenate([p[1] for p in points[offset]])
+    as_came = float(np.median(np.abs(a[:, 1] - b[:, 1])))
+    after_shift = float(np.median(np.abs(a[:, 1] - b[:, 1] - shift)))
+    turn = None
+    if camera is not None and after_shift > MEND_PX:
+        turn = right_rotation(a, b, camera)
+        if turn is not None:
+            turned = float(np.median(np.abs(a[:, 1] - turned_points(b, turn, camera)[:, 1])))
+            turn = turn if turned < 0.5 * after_shift else None
+    mended = turned if turn is not None else after_shift
     parts = []
     if offset:
         which = "later" if offset > 0 else "earlier"
@@ -132,7 +184,19 @@ def check_rig(
             f"the eyes' frames pair as named (row of matched features steady to {named:.2f} px "
             f"over {len(by_offset[0])} frames)"
         )
-    if shift:
+    if turn is not None:
+        shift = 0.0
+        parts.append(
+            f"matched features lie {after_shift:.2f} px off their rows (median): the right "
+            f"eye's rotation re-estimated from {len(a)} matches ({rotation_deg(turn):.2f} deg "
+            f"from the calibration's), the right image turned by it: {mended:.2f} px"
+        )
+    elif camera is not None and after_shift > MEND_PX:
+        parts.append(
+            f"matched features lie {after_shift:.2f} px off their rows (median) and no rotation "
+            "of the right eye brings them onto them: the stereo depth is doubtful"
+        )
+    elif shift:
         parts.append(
             f"the rectification leaves a vertical disparity of {row:.2f} px: the right image "
             "is shifted by it before matching"
@@ -145,8 +209,56 @@ def check_rig(
         spread_as_named_px=round(named, 3),
         spread_px=round(spread[offset], 3),
         frames=len(rows),
+        right_rotation=turn.tolist() if turn is not None else None,
+        vertical_px=round(as_came, 3),
+        vertical_mended_px=round(mended, 3),
         said="stereo rig checked against its images: " + "; ".join(parts),
     )
+
+
+def right_rotation(a: np.ndarray, b: np.ndarray, camera: Camera) -> np.ndarray | None:
+    """The right eye's rotation relative to the left (right-from-left, 3x3) from matched points
+    `a` (left) and `b` (right) of a pinhole `camera` (both eyes rectified to it): the rotation
+    that puts the turned right points on the left points' rows (robust least squares, 1 px
+    scale). The baseline stays along the rows: a rectified rig's, so that its direction cannot
+    soak up the rotation (an essential matrix on a 5 mm baseline trades one for the other: 1.3
+    degrees off on a synthetic rig turned by 2). None with too few matches."""
+    from scipy.optimize import least_squares
+    from scipy.spatial.transform import Rotation
+
+    if len(a) < 2 * MIN_MATCHES:
+        return None
+
+    def rows_apart(v: np.ndarray) -> np.ndarray:
+        r = Rotation.from_rotvec(v).as_matrix()
+        return a[:, 1] - turned_points(b, r, camera)[:, 1]
+
+    fit = least_squares(rows_apart, np.zeros(3), loss="soft_l1", f_scale=1.0)
+    return Rotation.from_rotvec(fit.x).as_matrix() if fit.success else None
+
+
+def rotation_deg(rotation: np.ndarray) -> float:
+    """The angle of a rotation matrix, degrees."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def turned_points(b: np.ndarray, rotation: np.ndarray, camera: Camera) -> np.ndarray:
+    """Right-image points where the right image turned by `rotation` (its camera brought parallel
+    to the left's) shows them."""
+    k = np.asarray(camera.matrix(), np.float64)
+    h = k @ rotation.T @ np.linalg.inv(k)
+    return cv2.perspectiveTransform(b.reshape(-1, 1, 2).astype(np.float64), h).reshape(-1, 2)
+
+
+def mended_right(image: np.ndarray, rig: RigCheck, camera: Camera | None) -> np.ndarray:
+    """The right image as the check found it should be matched: turned by the re-estimated
+    rotation, or shifted by the row offset, or as it is."""
+    if rig.right_rotation is None or camera is None:
+        return shifted_rows(image, rig.row_shift_px)
+    k = np.asarray(camera.matrix(), np.float64)
+    h = k @ np.asarray(rig.right_rotation).T @ np.linalg.inv(k)
+    size = (image.shape[1], image.shape[0])
+    return cv2.warpPerspective(image, h, size, flags=cv2.INTER_LINEAR, borderValue=0)
 
 
 def shifted_rows(image: np.ndarray, shift_px: float) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 from endopipe.pipeline.errors import InputError
 from endopipe.stages.camera import Camera
 from endopipe.stages.ingest.config import StereoConfig
-from endopipe.stages.ingest.rig_check import RigCheck, check_rig, shifted_rows
+from endopipe.stages.ingest.rig_check import RigCheck, check_rig, mended_right
 from endopipe.stages.ingest.selection import resize
 from endopipe.stages.ingest.stereo import match_depth
 from endopipe.stages.io.given_depth import GivenDepth
@@ -72,7 +72,11 @@ class FrameStereo:
         h, w = images[0].shape[:2]
         by_source = dict(zip(sources, images, strict=True))
         self.rig = check_rig(
-            sources, by_source.__getitem__, lambda s: self._right(s, (w, h)), self.cfg.max_offset
+            sources,
+            by_source.__getitem__,
+            lambda s: self._right(s, (w, h)),
+            self.cfg.max_offset,
+            camera=self.camera.scaled(w, h) if self.camera is not None else None,
         )
         return self.rig
 
@@ -84,7 +88,8 @@ class FrameStereo:
     def of(self, source_index: int, left: np.ndarray, usable: np.ndarray) -> np.ndarray | None:
         """float32 z-depth (mm, 0 = unknown) of a kept frame (working size), matched only where
         `usable` (the field of view without highlights); None when it has no right view. A
-        checked rig's right frame is the one its check paired, its rows shifted as found."""
+        checked rig's right frame is the one its check paired, its rows shifted or the image turned
+        as found."""
         if self.given is not None:
             return self._given(source_index, left, usable)
         assert self.pairs is not None and self.camera is not None
@@ -92,7 +97,7 @@ class FrameStereo:
         right = self._right(source_index + rig.frame_offset, (left.shape[1], left.shape[0]))
         if right is None:
             return None
-        right = shifted_rows(right, rig.row_shift_px)
+        right = mended_right(right, rig, self.camera.scaled(left.shape[1], left.shape[0]))
         return match_depth(left, right, self.camera.fx, self.pairs.baseline_mm, self.cfg, usable)
 
     def _given(self, source_index: int, left: np.ndarray, usable: np.ndarray) -> np.ndarray | None:
