@@ -21,7 +21,6 @@ import torch.nn.functional as F
 from torch import nn
 
 from endopipe.pipeline.errors import ConfigError
-from endopipe.stages.nerf.config import FieldConfig
 from endopipe.stages.nerf.encodings import (
     HashGrid,
     VMGrid,
@@ -29,6 +28,7 @@ from endopipe.stages.nerf.encodings import (
     sinusoidal,
     sinusoidal_dim,
 )
+from endopipe.stages.nerf.field_config import FieldConfig
 
 
 def _mlp(dims: list[int]) -> nn.Sequential:
