@@ -43,7 +43,7 @@ from endopipe.stages.metrics.depth import (
     relative_rotation_error_deg,
 )
 from endopipe.stages.poses.config import PosesConfig
-from endopipe.stages.poses.stage import match_frames
+from endopipe.stages.poses.sources import match_frames
 from endopipe.stages.poses.verdict import ranges
 from endopipe.stages.poses.view import CamerasFile, PosesView
 
