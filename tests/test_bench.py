@@ -9,7 +9,9 @@ import pytest
 from rich.console import Console
 
 from endopipe.cli import build_pipeline, prepare_case
-from endopipe.commands.bench import BenchCase, BenchPlan, markdown_table, plan, run_bench
+from endopipe.commands.bench import run_bench
+from endopipe.commands.bench_plan import BenchCase, BenchPlan, plan
+from endopipe.commands.bench_tables import markdown_table
 from endopipe.pipeline.errors import ConfigError, SummaryMismatch
 
 
@@ -57,7 +59,8 @@ def test_a_failing_run_becomes_a_row_and_the_bench_goes_on(tmp_path: Path) -> No
 def test_rows_and_table_put_the_two_guesses_beside_ours(tmp_path: Path) -> None:
     import numpy as np
 
-    from endopipe.commands.bench import COLUMNS, collect_row, write_csv
+    from endopipe.commands.bench import collect_row
+    from endopipe.commands.bench_tables import COLUMNS, write_csv
     from endopipe.pipeline.cache import Manifest
     from endopipe.stages.depth.stage import DepthSummary
     from endopipe.stages.metrics.depth import depth_sequence_metrics
@@ -161,7 +164,8 @@ def _sweep_row(case: str, ate: float | None, verdict: str | None, **kw) -> dict:
 
 
 def test_pose_table_tallies_the_verdict_against_the_ate(tmp_path: Path) -> None:
-    from endopipe.commands.bench import POSE_COLUMNS, count_ranges, pose_table, write_pose_csv
+    from endopipe.commands.bench import count_ranges
+    from endopipe.commands.bench_tables import POSE_COLUMNS, pose_table, write_pose_csv
 
     assert count_ranges("0-2, 7, 9-10") == 6 and count_ranges("") == 0
     rows = [
@@ -215,7 +219,8 @@ def test_the_sweep_option_writes_its_own_table(tmp_path: Path, monkeypatch) -> N
 
 
 def test_a_sweep_run_stops_after_poses_and_its_row_reads_the_verdict(tmp_path: Path) -> None:
-    from endopipe.commands.bench import pose_row, pose_table
+    from endopipe.commands.bench import pose_row
+    from endopipe.commands.bench_tables import pose_table
 
     # Ground-truth poses (no COLMAP): the run is seconds, the row is exact.
     case = BenchCase(

@@ -1,6 +1,7 @@
 """`endopipe bench`: the paper's table (or a poses sweep) on fixed-seed synthetic cases, saved
-after every case so a crash keeps the finished rows. The cases, variants and tables are the
-bench module's; this module only drives them and reports."""
+after every case so a crash keeps the finished rows. The cases and variants are bench_plan's,
+the runs and their rows bench's, the tables bench_tables'; this module only drives them and
+reports."""
 
 from __future__ import annotations
 
@@ -31,6 +32,8 @@ def run_bench_command(
 ) -> None:
     """Plan, run and tabulate; the extra settings are checked before hours of work."""
     from endopipe.commands import bench as b
+    from endopipe.commands import bench_tables as tables
+    from endopipe.commands.bench_plan import plan
     from endopipe.pipeline.config import load_config
     from endopipe.pipeline.errors import ConfigError
     from endopipe.pipeline.runner import ensure_writable
@@ -46,12 +49,13 @@ def run_bench_command(
                 "--profile runs each case once with the defaults: no --quick, --variant or --sweep"
             )
         named = cases or ([] if inputs else ["colon"])  # inputs alone: only those
-        bench_cases = b.plan(False, named).cases if named else []
+        bench_cases = plan(False, named).cases if named else []
         return run_profile(pipe, workdir, configs, bench_cases, inputs)
-    bench_plan = b.plan(quick, cases, variants, sweep)
-    name, write_csv, table_of, collect = "bench", b.write_csv, b.markdown_table, None
+    bench_plan = plan(quick, cases, variants, sweep)
+    name, write_csv, table_of, collect = "bench", tables.write_csv, tables.markdown_table, None
     if sweep is not None:
-        name, write_csv, table_of, collect = sweep, b.write_pose_csv, b.pose_table, b.pose_row
+        name, write_csv, table_of = sweep, tables.write_pose_csv, tables.pose_table
+        collect = b.pose_row
 
     def save(rows: list[dict]) -> None:  # after every run: a crash keeps the finished rows
         write_csv(workdir / f"{name}.csv", rows)
