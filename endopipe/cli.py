@@ -1,33 +1,31 @@
 """The composition root: wires the stages into the DAG and exposes the commands.
 
-Each command here declares its options and calls its body in endopipe.commands with the
-pipeline it needs. Every failure the user can act on ends as one line on stderr and a non-zero
-exit code.
+Each command here declares its options (the shared ones and the dataclass-declared ones in
+cli_options.py) and calls its body in endopipe.commands with the pipeline it needs. Every
+failure the user can act on ends as one line on stderr and a non-zero exit code (cli_exit.py).
 """
 
 from __future__ import annotations
 
-import dataclasses
-import functools
 import importlib
-import inspect
-import shlex
-import signal
 import sys
-import threading
-import traceback
-import typing
-from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, TypeVar
+from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.markup import escape
 
+from endopipe.cli_exit import run_app
+from endopipe.cli_options import (
+    DEFAULT_WORKDIR,
+    BaselineMmOption,
+    ConfigOption,
+    SetOption,
+    WorkdirOption,
+    with_options,
+)
 from endopipe.commands.cases import prepare_case
 from endopipe.commands.terminal import console, out
 from endopipe.jobs.options import Execution
-from endopipe.pipeline.errors import EndopipeError
 from endopipe.recording.options import RecordingOptions
 
 # The stages (torch, cv2) and the command bodies are imported by the commands that use them:
@@ -55,64 +53,6 @@ app = typer.Typer(
     no_args_is_help=True,
     help="endopipe: monocular endoscopic video -> poses, depth, mesh and an evaluation report.",
 )
-DEFAULT_WORKDIR = Path("workdir")
-#: Options several commands share, spelt once.
-WorkdirOption = Annotated[Path, typer.Option(help="Output root.")]
-ConfigOption = Annotated[
-    list[str] | None, typer.Option("--config", help="Preset name or YAML file; repeatable.")
-]
-SetOption = Annotated[list[str] | None, typer.Option("--set", help="stage.key=value; repeatable.")]
-BaselineMmOption = Annotated[
-    float | None, typer.Option(help="Distance between the two eyes of --right's rig, mm.")
-]
-Command = TypeVar("Command", bound=Callable[..., Any])
-
-
-def with_options(**declared: type[Any]) -> Callable[[Command], Command]:
-    """Declares a command's options from option dataclasses (`pipeline/options.py`), one option
-    per field with its default, help and lower bound, so options several commands share are
-    written once, where their defaults live. The command gets each dataclass, built and checked,
-    under its keyword (`recording=RecordingOptions(...)`); a value it refuses is a usage error
-    naming the option, raised before any work."""
-
-    def decorate(fn: Command) -> Command:
-        signature = inspect.signature(fn, eval_str=True)
-        kept = [p for p in signature.parameters.values() if p.name not in declared]
-        hints = {cls: typing.get_type_hints(cls) for cls in declared.values()}
-        added = [
-            inspect.Parameter(
-                f.name,
-                inspect.Parameter.KEYWORD_ONLY,
-                default=f.default,
-                annotation=Annotated[
-                    hints[cls][f.name],
-                    typer.Option(help=f.metadata.get("help"), min=f.metadata.get("min")),
-                ],
-            )
-            for cls in declared.values()
-            for f in dataclasses.fields(cls)
-        ]
-
-        @functools.wraps(fn)
-        def command(*args: Any, **kwargs: Any) -> Any:
-            built = {}
-            for keyword, cls in declared.items():
-                values = {f.name: kwargs.pop(f.name) for f in dataclasses.fields(cls)}
-                try:
-                    built[keyword] = cls(**values)
-                except ValueError as e:
-                    name, reason = e.args
-                    hint = "'--" + name.replace("_", "-") + "'"
-                    raise typer.BadParameter(reason, param_hint=hint) from None
-            return fn(*args, **kwargs, **built)
-
-        params = kept + added
-        command.__signature__ = signature.replace(parameters=params)  # type: ignore[attr-defined]
-        command.__annotations__ = {p.name: p.annotation for p in params}
-        return command  # type: ignore[return-value]
-
-    return decorate
-
 
 #: The DAG in order: each stage's module and class.
 DAG = (
@@ -559,103 +499,10 @@ def batch(
     )
 
 
-#: The exit code of a run stopped by Ctrl-C (SIGINT), as shells report it (128 + 2).
-INTERRUPTED = 130
-
-
-def _click_errors() -> tuple[type[Exception], ...]:
-    """Usage errors: those of the click that newer typer releases vendor, or click's own.
-    (Imported here: click is not needed, nor loaded, unless a command line is wrong.)"""
-    try:
-        from typer._click.exceptions import ClickException
-    except ImportError:  # typer < 0.20 uses click itself
-        from click import ClickException
-    return (ClickException,)
-
-
-#: The exit code of a run stopped by SIGTERM (a scheduler's time limit or preemption, `kill`).
-TERMINATED = 128 + signal.SIGTERM
-
-
-class _Terminated(KeyboardInterrupt):
-    """SIGTERM, raised where the run is so that it unwinds as Ctrl-C does: the stage running
-    keeps (resumable) or drops its temporary folder, and nothing is published half written."""
-
-
-def interrupted(argv: list[str] | None, terminated: bool = False) -> int:
-    """Ctrl-C or SIGTERM: say so, and how to go on; finished stages are kept and a re-run
-    resumes."""
-    command = shlex.join(["endopipe", *(sys.argv[1:] if argv is None else argv)])
-    what = "terminated (SIGTERM)" if terminated else "interrupted"
-    console.print(
-        f"[bold red]{what}[/bold red]: finished stages are kept; "
-        f"to resume, run the same command again: {escape(command)}",
-        highlight=False,
-        soft_wrap=True,
-    )
-    return TERMINATED if terminated else INTERRUPTED
-
-
 def main(argv: list[str] | None = None) -> int:
-    """Entry point: one clear line and an exit code for every failure, never a traceback.
-
-    With standalone_mode=False typer returns an exit code instead of exiting; Ctrl-C comes
-    back as 130 (typer turns KeyboardInterrupt into Exit(130)), and must not end as 0. SIGTERM
-    (what Slurm sends at a time limit, and `kill`) stops a run the same way, exit 143."""
-    stops: list[BaseException] = []
-
-    def on_sigterm(signum: int, frame: object) -> None:
-        stops.append(_Terminated())
-        raise stops[-1]
-
-    if threading.current_thread() is not threading.main_thread():  # signals go to the main one
-        return _main(argv, stops)
-    previous = signal.signal(signal.SIGTERM, on_sigterm)
-    try:
-        return _main(argv, stops)
-    finally:
-        signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
-
-
-def _main(argv: list[str] | None, stops: list) -> int:
-    """main's body; `stops` holds the SIGTERM that stopped the run, if one did (typer turns
-    it, as Ctrl-C, into an exit code of 130)."""
-    try:
-        code = app(args=argv, standalone_mode=False)
-    except EndopipeError as e:
-        console.print(
-            f"[bold red]error:[/bold red] {escape(str(e))}", highlight=False, soft_wrap=True
-        )
-        return e.exit_code
-    except typer.Exit as e:
-        return e.exit_code
-    except typer.Abort:
-        if stops:
-            return interrupted(argv, terminated=True)
-        console.print("[bold red]aborted[/bold red]")
-        return INTERRUPTED
-    except _click_errors() as e:
-        console.print(f"[bold red]error:[/bold red] {escape(e.format_message())}", soft_wrap=True)
-        return e.exit_code
-    except KeyboardInterrupt:
-        return interrupted(argv, terminated=bool(stops))
-    except Exception as e:  # an endopipe bug: one line here, the traceback in a log file
-        log = Path.home() / ".cache" / "endopipe" / "last_error.log"
-        try:
-            log.parent.mkdir(parents=True, exist_ok=True)
-            log.write_text(traceback.format_exc())
-            where = f"; traceback in {log}"
-        except OSError:
-            where = ""
-        console.print(
-            f"[bold red]internal error:[/bold red] {type(e).__name__}: {escape(str(e))}{where}",
-            highlight=False,
-            soft_wrap=True,
-        )
-        return 1
-    if code == INTERRUPTED:
-        return interrupted(argv, terminated=bool(stops))
-    return code if isinstance(code, int) else 0
+    """Entry point: one clear line and an exit code for every failure, never a traceback
+    (cli_exit.py)."""
+    return run_app(app, argv)
 
 
 def entry() -> None:
