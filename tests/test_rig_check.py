@@ -82,6 +82,28 @@ def test_a_right_eye_missing_frames_leaves_the_rig_unchecked_or_as_named() -> No
     assert "not checked" in found.said
 
 
+def test_rows_no_rotation_mends_leave_the_rigs_depth_out() -> None:
+    """A right eye whose rows wave by 3 px across the image (no rigid turn does that: a
+    rectification gone wrong, a rolling shutter): its depth is left out with the reason."""
+    from endopipe.stages.camera import Camera
+
+    rig = Rig()
+    xs = np.arange(W, dtype=np.float32)
+    wave = np.broadcast_to(3.0 * np.sin(2 * np.pi * xs / W * 2), (H, W))
+    map_x = np.broadcast_to(xs, (H, W)).astype(np.float32)
+    map_y = (np.arange(H, dtype=np.float32)[:, None] + wave).astype(np.float32)
+
+    def wavy(s: int) -> np.ndarray:
+        return cv2.remap(rig.right(s), map_x, map_y, cv2.INTER_LINEAR)
+
+    camera = Camera(width=W, height=H, fx=250.0, fy=250.0, cx=159.5, cy=119.5)
+    found = check_rig(list(range(5, 60)), rig.left, wavy, camera=camera)
+    assert found.refused is not None and "left out" in found.refused, found.said
+    assert found.right_rotation is None
+    # the same rig with its rows straight is used
+    assert check_rig(list(range(5, 60)), rig.left, rig.right, camera=camera).refused is None
+
+
 def _turned(image: np.ndarray, k: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     """The image a camera turned by `rotation` (new-from-old) about its centre would see."""
     h = k @ rotation @ np.linalg.inv(k)

@@ -21,10 +21,12 @@ matching (a fraction of a pixel already costs the matcher).
 A rig whose calibration is a little off in rotation (a real SCARED keyframe's, 1.8 degrees: the
 matched features then lie many pixels off their rows, more towards the edges) is not mended by a
 shift. When the vertical disparity of the matches exceeds `MEND_PX` after the shift, the right
-eye's rotation relative to the left is re-estimated from the matches (the essential matrix with
-the rectified camera: five-point RANSAC) and the right image is turned by it before matching;
-the baseline's length stays the calibration's (it fixes the scale). Taken only when it brings
-the vertical disparity down to under half; said with the before and after.
+eye's rotation relative to the left is re-estimated from the matches (the rotation alone, fitted
+to put them on their rows: an essential matrix would trade it for the baseline's direction) and
+the right image is turned by it before matching; the baseline stays the calibration's (its
+length fixes the scale). Taken only when it brings the
+vertical disparity down to under half, said with the before and after; when nothing does, the
+rig's depth is left out with the reason, never matched wrong.
 """
 
 from __future__ import annotations
@@ -76,6 +78,10 @@ class RigCheck(BaseModel):
     )
     vertical_mended_px: float | None = Field(
         None, description="... after the row shift or the rotation the check took (px)"
+    )
+    refused: str | None = Field(
+        None,
+        description="why the rig's depth is left out (its rows cannot be mended); None: used",
     )
     said: str = Field("", description="the finding in one line")
 
@@ -163,7 +169,7 @@ def check_rig(
     b = np.concatenate([p[1] for p in points[offset]])
     as_came = float(np.median(np.abs(a[:, 1] - b[:, 1])))
     after_shift = float(np.median(np.abs(a[:, 1] - b[:, 1] - shift)))
-    turn = None
+    turn, refused = None, None
     if camera is not None and after_shift > MEND_PX:
         turn = right_rotation(a, b, camera)
         if turn is not None:
@@ -192,10 +198,12 @@ def check_rig(
             f"from the calibration's), the right image turned by it: {mended:.2f} px"
         )
     elif camera is not None and after_shift > MEND_PX:
-        parts.append(
+        refused = (
             f"matched features lie {after_shift:.2f} px off their rows (median) and no rotation "
-            "of the right eye brings them onto them: the stereo depth is doubtful"
+            "of the right eye brings them onto them: the rig's depth is left out (check the "
+            "rectification; ingest.stereo.check=false matches it as it is)"
         )
+        parts.append(refused)
     elif shift:
         parts.append(
             f"the rectification leaves a vertical disparity of {row:.2f} px: the right image "
@@ -212,6 +220,7 @@ def check_rig(
         right_rotation=turn.tolist() if turn is not None else None,
         vertical_px=round(as_came, 3),
         vertical_mended_px=round(mended, 3),
+        refused=refused,
         said="stereo rig checked against its images: " + "; ".join(parts),
     )
 

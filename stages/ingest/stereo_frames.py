@@ -78,6 +78,10 @@ class FrameStereo:
             self.cfg.max_offset,
             camera=self.camera.scaled(w, h) if self.camera is not None else None,
         )
+        if self.rig.refused is not None:
+            if self.cfg.mode == "on":
+                raise InputError(f"ingest.stereo.mode=on but {self.rig.refused}")
+            self.skipped = self.rig.refused
         return self.rig
 
     def _right(self, source_index: int, size: tuple[int, int]) -> np.ndarray | None:
