@@ -7,7 +7,9 @@ through the nerf stage from an input with rectified right views (a Hamlyn sequen
 synth ... --layout hamlyn --stereo`). The right camera is the left one moved by the rig's
 baseline along its +x (docs/formats.md: a rectified rig), in the poses' units (millimetres:
 stereo poses are metric). Prints the right eye's PSNR on `--frames` frames (training and
-held-out times alike, spread over the clip) and the stage's held-out PSNR. A benchmark.
+held-out times alike, spread over the clip), over the right eye's image and over the pixels whose
+surface the left eye saw too (the band the baseline uncovers no left frame showed), beside the
+stage's held-out PSNR. A benchmark.
 """
 
 from __future__ import annotations
@@ -17,8 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from endopipe.stages.camera import lens_valid_mask
+from endopipe.stages.camera import image_directions, lens_valid_mask, project_camera
 from endopipe.stages.centerline.view import CenterlineView
+from endopipe.stages.ingest.config import IngestConfig
+from endopipe.stages.ingest.masks import specular_mask
 from endopipe.stages.ingest.rig_check import RigCheck, mended_right
 from endopipe.stages.ingest.selection import resize
 from endopipe.stages.ingest.view import IngestView
@@ -27,6 +31,9 @@ from endopipe.stages.nerf import losses
 from endopipe.stages.nerf.render import render_image
 from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
+
+#: The highlight detector as ingest runs it by default.
+SPECULAR = IngestConfig().specular
 
 
 def main() -> None:
@@ -54,23 +61,48 @@ def main() -> None:
     shift[0, 3] = source.stereo.baseline_mm  # the right eye: the left one moved along its +x
     rig = ingest.file.stereo.rig if ingest.file.stereo else None
     offset = rig.frame_offset if rig else 0  # the right frame of the same moment
-    scores = []
+    scores, shared = [], []
     for i in picked:
         right = source.stereo.right(ingest.frame(i).source_index + offset)
         if right is None:
             continue
-        right = resize(right, (ingest.width, ingest.height))
+        right_u8 = resize(right, (ingest.width, ingest.height))
+        right = right_u8
         right = mended_right(right, rig or RigCheck(), k).astype(np.float32) / 255.0
         with model.at_frame(position[i]):
-            rgb = render_image(model, prior, k, c2w[i] @ shift, frame=position[i])["rgb"]
-        usable = lens & (right.max(-1) > 0.02)  # not the right eye's black rectification band
-        scores.append(losses.psnr(float(((rgb - right) ** 2).mean(-1)[usable].mean())))
-        print(f"frame {i}: right eye {scores[-1]:.2f} dB", flush=True)
+            out = render_image(model, prior, k, c2w[i] @ shift, frame=position[i])
+        rgb = out["rgb"]
+        # not the right eye's black rectification band, nor its highlights (view-dependent:
+        # the left frames' are masked out of training as well)
+        usable = lens & (right.max(-1) > 0.02) & (specular_mask(right_u8, SPECULAR) == 0)
+        both = usable & seen_by_left(k, out["depth"], shift, lens)
+        err = ((rgb - right) ** 2).mean(-1)
+        scores.append(losses.psnr(float(err[usable].mean())))
+        shared.append(losses.psnr(float(err[both].mean())))
+        print(
+            f"frame {i}: right eye {scores[-1]:.2f} dB; where the left eye saw the surface too "
+            f"({both.sum() / max(usable.sum(), 1):.0%} of it) {shared[-1]:.2f} dB",
+            flush=True,
+        )
     held = nerf.metrics.psnr if nerf.metrics else None
     print(
         f"right eye, rendered from the left eye's field: {np.mean(scores):.2f} dB over "
-        f"{len(scores)} frames; held-out left frames: {held:.2f} dB"
+        f"{len(scores)} frames ({np.mean(shared):.2f} dB where the left eye saw it too); "
+        f"held-out left frames: {held:.2f} dB"
     )
+
+
+def seen_by_left(k, depth: np.ndarray, shift: np.ndarray, lens: np.ndarray) -> np.ndarray:
+    """The right eye's pixels whose rendered surface the left eye sees inside its lens: the
+    rest (a band as wide as the disparity) no left frame showed, and no field can know."""
+    dirs = image_directions(k)
+    points = dirs * depth[..., None] + shift[:3, 3]  # right camera -> left camera frame
+    uv, z = project_camera(k, points.reshape(-1, 3))
+    u, v = np.round(uv[:, 0]).astype(int), np.round(uv[:, 1]).astype(int)
+    inside = (z > 0) & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
+    seen = np.zeros(len(u), bool)
+    seen[inside] = lens[v[inside], u[inside]]
+    return seen.reshape(depth.shape) & (depth > 0)
 
 
 if __name__ == "__main__":
