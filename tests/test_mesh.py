@@ -318,6 +318,25 @@ def test_tsdf_of_a_fisheye_seeing_to_ninety_degrees():
     assert off_axis.max() > 88.0
 
 
+def test_a_wide_fisheyes_frustum_box_stays_near_the_camera():
+    """A fisheye seeing near 90 degrees off its axis at the corners: its frustum's box (the
+    marching-cubes grid and the baked depth's surface are laid over it) reaches at most
+    tan(75 deg) depths to the side, not tens (a 176-degree synthetic C3VD case asked for a
+    2892 x 2436 x 501 grid), and a pinhole's is the whole frustum as before."""
+    from endopipe.stages.surface.evaluate import frustum_box
+
+    f = 80.0 / np.deg2rad(88.0)
+    fish = Camera(
+        width=160, height=128, fx=f, fy=f, cx=79.5, cy=63.5, model="fisheye", dist=[0, 0, 0, 0]
+    )
+    lo, hi = frustum_box([np.eye(4)], fish, 10.0)
+    assert np.all(np.abs(lo[:2]) <= 10.0 * np.tan(np.radians(75.0)) + 1e-6)
+    assert np.all(np.abs(hi[:2]) <= 10.0 * np.tan(np.radians(75.0)) + 1e-6)
+    pin = Camera(width=160, height=128, fx=80.0, fy=80.0, cx=79.5, cy=63.5)
+    lo, hi = frustum_box([np.eye(4)], pin, 10.0)
+    assert hi[0] == pytest.approx(10.0 * 80.0 / 80.0) and hi[2] == pytest.approx(10.0)
+
+
 def test_fused_mesh_lies_on_the_depth_maps_pixels():
     """The depth maps back-projected through their own cameras lie on the fused mesh to within
     0.1% of the depth (median over pixels): the fusion reads each pixel where our convention puts

@@ -160,15 +160,24 @@ def visible_from_cameras(
     return seen
 
 
+#: The widest a frustum's box reaches off the axis (a pinhole up to 150 degrees across is
+#: boxed whole).
+FRUSTUM_MAX_DEG = 75.0
+
+
 def frustum_box(
     c2ws: list[np.ndarray], camera: Camera, max_depth: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """World bounding box (lo, hi) of the cameras' frustums: apexes and far-plane corners (the
-    rays through the image's outer corners, the lens undone)."""
+    rays through the image's outer corners, the lens undone). A wide fisheye's corner rays
+    run near 90 degrees off the axis, where the far plane lies tens of depths out to the side:
+    they are taken at most FRUSTUM_MAX_DEG off it (what lies further out is not boxed)."""
     w, h = camera.width, camera.height
     cu = np.array([-0.5, w - 0.5, -0.5, w - 0.5])
     cv = np.array([-0.5, -0.5, h - 0.5, h - 0.5])
-    rays = pixel_directions(camera, cu, cv)
+    rays = np.array(pixel_directions(camera, cu, cv), np.float64)  # z = 1
+    side = np.linalg.norm(rays[:, :2], axis=1, keepdims=True)
+    rays[:, :2] *= np.minimum(1.0, np.tan(np.radians(FRUSTUM_MAX_DEG)) / np.maximum(side, 1e-12))
     pts = []
     for c2w in c2ws:
         c2w = np.asarray(c2w, np.float64)
