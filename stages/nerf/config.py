@@ -120,10 +120,12 @@ class SamplingConfig(ConfigSection):
         "the wall is extrapolated straight, not seen) is not bounded there: far = the cap.",
     )
     chunk: int = Field(8192, ge=256, description="Rays per chunk when rendering whole images.")
-    proposal: bool = Field(
-        True,
+    proposal: bool | Literal["auto"] = Field(
+        "auto",
         description="two_pass, training: the first pass reads a coarse copy of the density on "
-        "a dense grid (nerf/proposal.py), refreshed as training goes, instead of the field.",
+        "a dense grid (nerf/proposal.py), refreshed as training goes, instead of the field. "
+        "auto: on where a lumen prior shapes the density, off without one (the sinus window "
+        "with no prior: depth AbsRel 0.153 with it, 0.108 without).",
     )
     proposal_res: int = Field(
         128, ge=8, description="Cells of the proposal grid along the box's longest side."

@@ -336,7 +336,12 @@ def choose_dynamic(cfg: NerfConfig, poses, n_frames: int, log) -> NerfConfig:
         update: dict = {"dynamic": False}
         timed = cfg.field.appearance_time
         if timed == "auto":
-            timed = cfg.field.encoding == "tensorf"
+            timed = cfg.field.encoding == "tensorf" and cfg.loss.prior
+            if not cfg.loss.prior:
+                log(
+                    "albedo over time off: no lumen prior shapes the geometry (without one an "
+                    "albedo over time takes what the shape should explain)"
+                )
         update["appearance_time"] = timed
         if timed:
             update["time_nodes"] = nodes
@@ -353,6 +358,18 @@ def choose_dynamic(cfg: NerfConfig, poses, n_frames: int, log) -> NerfConfig:
     loss = cfg.loss.model_copy(update={"geo": False})
     log(f"dynamic field: {nodes} time nodes over {n_frames} frames; multi-frame depth off")
     return cfg.model_copy(update={"field": field, "loss": loss})
+
+
+def choose_proposal(cfg: NerfConfig, log) -> NerfConfig:
+    """sampling.proposal auto: the coarse density copy proposes the first pass's samples where
+    a lumen prior shapes the density (weigh_prior left it on); without one the density is
+    diffuse and its coarse copy misplaces them."""
+    if cfg.sampling.proposal != "auto":
+        return cfg
+    on = bool(cfg.loss.prior)
+    if not on:
+        log("proposal grid off: no lumen prior shapes the density; every pass reads the field")
+    return cfg.model_copy(update={"sampling": cfg.sampling.model_copy(update={"proposal": on})})
 
 
 def frame_times(ingest, ids: list[int]) -> list[float]:
@@ -404,6 +421,7 @@ def set_up_training(
     ids, k, images, masks, c2w = build_frames(ingest, poses, device)
     cfg = still_camera_settings(cfg, poses, log)
     cfg = choose_dynamic(cfg, poses, len(ids), log)
+    cfg = choose_proposal(cfg, log)
     cfg = choose_geometry(cfg, prior, log)
     box = fit_box(c2w, k, images.shape[1:3], prior, cfg, poses.points(), log)
     cfg = regularise_far_view(cfg, box, log)

@@ -148,7 +148,7 @@ class Trainer:
         self.elapsed = 0.0
         self.rows: list[dict] = []
         sc = cfg.sampling
-        if sc.proposal and sc.sampler == "two_pass":
+        if sc.proposal is not False and sc.sampler == "two_pass":  # auto unresolved: on
             self.model.proposal = ProposalGrid(tuple(box.extent), sc.proposal_res, self.device)
         self._build_optimizer()
 
