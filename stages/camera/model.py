@@ -75,7 +75,12 @@ class Camera(BaseModel):
     def scaled(self, width: int, height: int) -> Camera:
         """The same camera seen at another resolution (pixel-centre convention kept; the
         distortion acts on normalised coordinates, so it is unchanged)."""
-        sx, sy = width / self.width, height / self.height
+        return self.zoomed(width / self.width, height / self.height, width, height)
+
+    def zoomed(self, sx: float, sy: float, width: int, height: int) -> Camera:
+        """The same camera with `sx`, `sy` times as many pixels along each axis, on an image of
+        `width` x `height` (`scaled` when that is this image times them; a calibration stated
+        for frames of another size when it is not)."""
         return self.model_copy(
             update={
                 "width": width,

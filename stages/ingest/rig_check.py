@@ -24,9 +24,9 @@ shift. When the vertical disparity of the matches exceeds `MEND_PX` after the sh
 eye's rotation relative to the left is re-estimated from the matches (the rotation alone, fitted
 to put them on their rows: an essential matrix would trade it for the baseline's direction) and
 the right image is turned by it before matching; the baseline stays the calibration's (its
-length fixes the scale). Taken only when it brings the
-vertical disparity down to under half, said with the before and after; when nothing does, the
-rig's depth is left out with the reason, never matched wrong.
+length fixes the scale). Taken only when it brings the vertical disparity down to under half,
+said with the before and after; when nothing does, the rig's depth is left out with the
+reason, never matched wrong.
 """
 
 from __future__ import annotations
@@ -139,20 +139,22 @@ def check_rig(
     picked = [sources[int(round(k))] for k in np.linspace(0, len(sources) - 1, frames)]
     picked = sorted(set(picked))
     lefts = {s: _grey(left(s)) for s in picked}
-    by_offset: dict[int, list[float]] = {}
-    points: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+    points: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}  # matches per frame, by offset
     for off in range(-max_offset, max_offset + 1):
-        rows, pts = [], []
+        pts = []
         for s in picked:
             r = right(s + off)
             if r is None:
                 continue
             a, b = matched_points(lefts[s], _grey(r))
             if len(a) >= MIN_MATCHES:
-                rows.append(float(np.median(a[:, 1] - b[:, 1])))
                 pts.append((a, b))
-        if len(rows) >= MIN_FRAMES:
-            by_offset[off], points[off] = rows, pts
+        if len(pts) >= MIN_FRAMES:
+            points[off] = pts
+    # each frame's median vertical disparity, by offset
+    by_offset = {
+        off: [float(np.median(a[:, 1] - b[:, 1])) for a, b in pts] for off, pts in points.items()
+    }
     if 0 not in by_offset:
         return RigCheck(
             frames=len(by_offset.get(0, [])),

@@ -69,8 +69,9 @@ class Ingest(Stage):
         tools = FrameTools(source.tool_masks, cfg.tools)
         calibration = source_intrinsics(source, selection.source_size, size)
         intrinsics = calibration.camera if calibration else None
-        if calibration and calibration.said:
-            warn(ctx, calibration.said)
+        calibration_said = calibration.said if calibration else None
+        if calibration_said:
+            warn(ctx, calibration_said)
         stereo = FrameStereo(source.stereo, intrinsics, cfg.stereo, source.given_depth)
         rig = stereo.check([f.source_index for f in frames], images)
         if rig is not None:
@@ -178,11 +179,8 @@ class Ingest(Stage):
             has_ground_truth=source.gt_dir is not None,
             gt_frames_without_depth=gt.frames_without_depth,
             gt_frames_without_pose=gt.frames_without_pose,
-            calibration_check=calibration.said if calibration else None,
-            warnings=[
-                *([calibration.said] if calibration and calibration.said else []),
-                *gt.warnings,
-            ],
+            calibration_check=calibration_said,
+            warnings=[*([calibration_said] if calibration_said else []), *gt.warnings],
         )
 
 

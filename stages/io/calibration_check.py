@@ -49,7 +49,8 @@ def fit_to_frames(camera: Camera, source: str) -> CalibrationFit:
         return CalibrationFit(camera)
     w, h = camera.width, camera.height
     for factor in FACTORS:
-        mended = _as_stated_for(camera, factor)
+        # its numbers taken as a calibration of frames `factor` times the size, brought here
+        mended = camera.zoomed(1.0 / factor, 1.0 / factor, w, h)
         if off_centre(mended) <= ON_CENTRE:
             sw, sh = round(w * factor), round(h * factor)
             return CalibrationFit(
@@ -71,21 +72,4 @@ def fit_to_frames(camera: Camera, source: str) -> CalibrationFit:
         f"{source}: the calibration puts the principal point ({camera.cx:.1f}, {camera.cy:.1f}) "
         f"{share:.0%} of the image off the centre of the {w}x{h} frames; kept as given, "
         "doubtful (a cropped image, or a calibration for other frames)",
-    )
-
-
-def _as_stated_for(camera: Camera, factor: float) -> Camera:
-    """The numbers of `camera` taken as a calibration of frames `factor` times the size, brought
-    to the frames' own size."""
-    w, h = camera.width, camera.height
-    sx = sy = 1.0 / factor
-    return camera.model_copy(
-        update={
-            "fx": camera.fx * sx,
-            "fy": camera.fy * sy,
-            "cx": (camera.cx + 0.5) * sx - 0.5,
-            "cy": (camera.cy + 0.5) * sy - 0.5,
-            "width": w,
-            "height": h,
-        }
     )
