@@ -5,6 +5,7 @@ stages/io/scared.py reads.
 endoscope_calibration.yaml      M1 = M2 (the synthetic camera), D1 = D2 (its lens, OpenCV's
                                 five), R = I, T = (-baseline, 0, 0) mm; no stereo: T = (-1, 0, 0)
 left_depth_map.tiff             float32 x, y, z (mm) of each left pixel of the first frame
+Left_Image.png, Right_Image.png the first frame's two eyes (--stereo; the left alone without)
 data/rgb.mp4                    left over right (--stereo), else the left eye alone
 data/frame_data/frame_dataNNNNNN.json   {"camera-pose": the left camera's c2w (mm)}
 ```
@@ -26,7 +27,14 @@ import tifffile
 
 from endopipe.pipeline.errors import EndopipeError
 from endopipe.stages.camera import Camera, backproject
-from endopipe.stages.io.scared import CALIBRATION, FRAME_DATA, KEYFRAME_DEPTH, VIDEO
+from endopipe.stages.io.scared import (
+    CALIBRATION,
+    FRAME_DATA,
+    KEYFRAME_DEPTH,
+    LEFT_IMAGE,
+    RIGHT_IMAGE,
+    VIDEO,
+)
 
 FPS = 25
 CRF = 14
@@ -83,6 +91,9 @@ class ScaredSink:
             tifffile.imwrite(
                 str(self.out / KEYFRAME_DEPTH), points.astype(np.float32), photometric="rgb"
             )
+            for name, eye in ((LEFT_IMAGE, rgb), (RIGHT_IMAGE, right)):
+                if eye is not None:
+                    cv2.imwrite(str(self.out / name), cv2.cvtColor(eye, cv2.COLOR_RGB2BGR))
         frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="rgb24")
         frame.pts = self.count
         for packet in self.stream.encode(frame):

@@ -76,7 +76,7 @@ def test_view_reads_what_ingest_wrote(ingested: tuple[Path, Path]) -> None:
     raw = json.loads((out / "frames.json").read_text())
     assert list(raw) == [
         "frames", "intrinsics", "width", "height", "source", "gt_dir", "fov_shape", "dropped",
-        "dropped_frames", "tools", "known_poses", "stereo", "depth_prior",
+        "dropped_frames", "tools", "known_poses", "stereo", "depth_prior", "one_pair",
     ]  # fmt: skip
     assert list(raw["frames"][0]) == [
         "index", "source_index", "time_s", "file", "mask", "tool", "tool_share", "stereo",

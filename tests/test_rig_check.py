@@ -34,6 +34,11 @@ def view(tex: np.ndarray, x: float, y: float) -> np.ndarray:
     return cv2.warpAffine(tex, m, (W, H), flags=cv2.INTER_LINEAR)
 
 
+#: Eight frames (the check's default: 16) and a pairing up to one frame off (2): the same
+#: judgement at a third of the SIFT work.
+QUICK = {"frames": 8, "max_offset": 1}
+
+
 class Rig:
     """A camera panning over a wall, its vertical speed changing (up to 2.5 px a frame); the
     right eye sees the wall `DISPARITY` px to the left and `row` px higher."""
@@ -55,7 +60,7 @@ class Rig:
 @pytest.mark.parametrize("lag", [0, 1, -1])
 def test_the_pairing_of_the_same_moment_is_found(lag: int) -> None:
     rig = Rig(row=0.0, lag=lag)
-    found = check_rig(list(range(5, 60)), rig.left, rig.right)
+    found = check_rig(list(range(5, 60)), rig.left, rig.right, **QUICK)
     assert found.frame_offset == lag, found.said
     assert found.spread_px is not None and found.spread_px < 0.1
     if lag:
@@ -66,7 +71,7 @@ def test_the_pairing_of_the_same_moment_is_found(lag: int) -> None:
 
 def test_the_rectifications_rows_are_found_and_mended() -> None:
     rig = Rig(row=0.7)
-    found = check_rig(list(range(5, 60)), rig.left, rig.right)
+    found = check_rig(list(range(5, 60)), rig.left, rig.right, **QUICK)
     assert found.frame_offset == 0
     assert found.row_shift_px == pytest.approx(0.7, abs=0.1)
     grey = [cv2.cvtColor(i, cv2.COLOR_RGB2GRAY) for i in (rig.left(20), rig.right(20))]
@@ -77,7 +82,7 @@ def test_the_rectifications_rows_are_found_and_mended() -> None:
 
 def test_a_right_eye_missing_frames_leaves_the_rig_unchecked_or_as_named() -> None:
     rig = Rig()
-    found = check_rig(list(range(5, 60)), rig.left, lambda s: None)
+    found = check_rig(list(range(5, 60)), rig.left, lambda s: None, **QUICK)
     assert found.frame_offset == 0 and found.row_shift_px == 0.0
     assert "not checked" in found.said
 
@@ -97,11 +102,13 @@ def test_rows_no_rotation_mends_leave_the_rigs_depth_out() -> None:
         return cv2.remap(rig.right(s), map_x, map_y, cv2.INTER_LINEAR)
 
     camera = Camera(width=W, height=H, fx=250.0, fy=250.0, cx=159.5, cy=119.5)
-    found = check_rig(list(range(5, 60)), rig.left, wavy, camera=camera)
+    found = check_rig(list(range(5, 60)), rig.left, wavy, camera=camera, **QUICK)
     assert found.refused is not None and "left out" in found.refused, found.said
     assert found.right_rotation is None
     # the same rig with its rows straight is used
-    assert check_rig(list(range(5, 60)), rig.left, rig.right, camera=camera).refused is None
+    assert (
+        check_rig(list(range(5, 60)), rig.left, rig.right, camera=camera, **QUICK).refused is None
+    )
 
 
 def _turned(image: np.ndarray, k: np.ndarray, rotation: np.ndarray) -> np.ndarray:

@@ -50,7 +50,9 @@ class Centerline(Stage):
 
     name = "centerline"
     needs = ("ingest", "poses")
-    version = 8  # 8: a still stereo camera's scene unit is its measured depth (mm)
+    # 9: a stereo pair alone as a still one; 8: a still stereo camera's scene unit is its
+    # measured depth (mm)
+    version = 9
     Config = CenterlineConfig
     Summary = CenterlineSummary
     View = CenterlineView
@@ -61,10 +63,11 @@ class Centerline(Stage):
         centres = poses.centres()
         if len(centres) == 0:
             raise StageFailed("centerline: no registered cameras in 02_poses")
-        if poses.still:
-            ingest = ctx.input(IngestView)
+        ingest = ctx.input(IngestView)
+        if poses.still or ingest.one_pair:
             typical = stereo_typical_depth(ingest, poses)
-            return no_parallax(ctx, centres, typical, ingest.stereo_measured_by)
+            why = "one stereo pair is one view" if ingest.one_pair else "the camera stands still"
+            return no_parallax(ctx, centres, typical, ingest.stereo_measured_by, why)
         view_dirs = np.array([poses.c2w[i][:3, 2] for i in poses.registered]).reshape(-1, 3)
         points = poses.points()
         units = poses.file.units
@@ -72,7 +75,7 @@ class Centerline(Stage):
             "tube": fit_tube(centres, view_dirs, points, cfg, metric=poses.metric),
             "cavity": fit_cavity(centres, view_dirs, points, cfg, metric=poses.metric),
         }
-        frames, origins, seen = observation_rays(ctx.input(IngestView), poses, points)
+        frames, origins, seen = observation_rays(ingest, poses, points)
         candidates = {k: f.prior(cfg.far_radii) for k, f in fits.items()}
         choice = choose_prior(
             candidates,
@@ -206,6 +209,7 @@ def no_parallax(
     centres: np.ndarray,
     stereo_depth: float | None,
     measured_by: str = "the stereo rig",
+    why: str = "the camera stands still",
 ):
     """A still camera saw nothing from two places: no points, no shape to fit. No prior; the
     scene's unit is the stereo depth's typical distance in mm when a rig measured it, else
@@ -217,12 +221,12 @@ def no_parallax(
     prior = FreePrior(centres.mean(0), scale, STILL_REACH * typical, typical)
     if stereo_depth is not None:
         reason = (
-            "none: the camera stands still, so no parallax places any point; "
+            f"none: {why}, so no parallax places any point; "
             f"{measured_by} measured the typical distance, {typical:.1f} mm"
         )
     else:
         reason = (
-            "none: the camera stands still, so no parallax places any point; depth is relative "
+            f"none: {why}, so no parallax places any point; depth is relative "
             f"(the typical distance is {STILL_DEPTH:g} unit by definition)"
         )
     ctx.log(f"prior: {reason}")

@@ -74,6 +74,23 @@ class FieldSight:
         return cls(render, k, c2w, model, time.perf_counter() - t0)
 
 
+def stereo_sight(ingest: IngestView, poses: PosesView) -> FieldSight:
+    """A stereo pair alone (no field): each frame's depth is the rig's, measured in ingest, and
+    unknown where the matcher could not vouch for it; nothing is rendered."""
+    k = poses.intrinsics
+    if (k.width, k.height) != (ingest.width, ingest.height):
+        k = k.scaled(ingest.width, ingest.height)
+
+    def render(k: Camera, c2w: np.ndarray, i: int, colour: bool) -> dict[str, Any]:
+        depth = ingest.stereo_depth(i)
+        if depth is None:
+            depth = np.zeros((k.height, k.width), np.float32)
+        measured = (depth > 0).astype(np.float32)
+        return {"depth": depth.copy(), "opacity": measured, "hazy": np.zeros(depth.shape, bool)}
+
+    return FieldSight(render, k, dict(poses.c2w), None, 0.0)
+
+
 def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, nerf: NerfView):
     """A function (intrinsics, c2w, frame, colour) -> {depth, opacity[, rgb]}; depth is 0
     where the ray found no surface (unless `fill`). Colour is the nerf stage's own rendering

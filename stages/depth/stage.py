@@ -29,7 +29,7 @@ from endopipe.stages.depth.evaluate import (
 )
 from endopipe.stages.depth.metrics_file import DepthMetrics
 from endopipe.stages.depth.preview import write_preview
-from endopipe.stages.depth.renderer import READ_OUT_WHY, FieldSight, field_depth
+from endopipe.stages.depth.renderer import READ_OUT_WHY, FieldSight, field_depth, stereo_sight
 from endopipe.stages.depth.summary import DepthSummary
 from endopipe.stages.depth.support import write_support
 from endopipe.stages.depth.view import DEPTH_DIR, OPACITY_DIR, PREVIEW_FILE, DepthView, frame_file
@@ -48,11 +48,11 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    # 15: depth held to the stereo or the SfM points; 14: a volume-rendered ray's depth is its
-    # weights' median where no measured depth trained the field; 13: tools left out of the
-    # scores, depth from shading scored; 12: says when the truth also supervised; 11: the
-    # depth prior scored; 10: stereo
-    version = 15
+    # 16: a stereo pair alone: the rig's depth; 15: depth held to the stereo or the SfM
+    # points; 14: a volume-rendered ray's depth is its weights' median where no measured depth
+    # trained the field; 13: tools left out of the scores, depth from shading scored; 12: says
+    # when the truth also supervised; 11: the depth prior scored; 10: stereo
+    version = 16
     Config = DepthConfig
     Summary = DepthSummary
     View = DepthView
@@ -63,17 +63,25 @@ class Depth(Stage):
         poses = ctx.input(PosesView)
         centerline = ctx.input(CenterlineView)
         nerf = ctx.input(NerfView)
-        sight = FieldSight.open(cfg, ingest, poses, centerline, nerf)
+        if nerf.trained:
+            sight = FieldSight.open(cfg, ingest, poses, centerline, nerf)
+            used = "field" if sight.model.field.dynamic else cfg.renderer
+        else:
+            sight, used = stereo_sight(ingest, poses), "stereo"
+            ctx.log(f"no field ({nerf.summary.skipped}): each depth map is the stereo's")
         renderer, k, c2w, bake_s = sight.render, sight.camera, sight.c2w, sight.bake_s
         heldout = set(getattr(sight.model, "meta", {}).get("heldout", []))
-        used = "field" if sight.model.field.dynamic else cfg.renderer
-        if used != cfg.renderer:
+        if used not in (cfg.renderer, "stereo"):
             ctx.log("renderer field: a dynamic field renders each frame at its own time")
         if used == "field":
             ctx.log(f"each ray's depth: {READ_OUT_WHY[field_depth(cfg, nerf)]}")
         beyond_lens = unseen_pixels(k, ingest)  # no ray, or outside the scope: no depth
         anchor = Anchor.open(
-            cfg.anchor, ingest, poses, cfg.anchor_sigma_stereo, cfg.anchor_sigma_points
+            cfg.anchor if nerf.trained else "off",
+            ingest,
+            poses,
+            cfg.anchor_sigma_stereo,
+            cfg.anchor_sigma_points,
         )
         held: list[Anchored] = []
         for sub in (DEPTH_DIR, OPACITY_DIR):
@@ -151,7 +159,7 @@ class Depth(Stage):
             rgbs,
             (k.cx, k.cy),
             poses.metric,
-            stereo or None,
+            (stereo or None) if nerf.trained else None,  # a pair alone: ours is the stereo
             prior_maps(ingest, list(depths)) or None,
             shading,
         )

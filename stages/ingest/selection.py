@@ -46,9 +46,12 @@ class Selection:
     dropped_frames: dict[str, list[int]] | None = None  # by content: source_index by reason
 
 
-def select_frames(source: InputSource, cfg: IngestConfig, ctx: StageContext) -> Selection:
+def select_frames(
+    source: InputSource, cfg: IngestConfig, ctx: StageContext, fewest: int | None = None
+) -> Selection:
     """Stride, time window, blank / duplicate / blur filtering, or keyframes by content in a
-    recording; reasons are counted."""
+    recording; reasons are counted. Fewer than `fewest` frames (default `min_frames`) is an
+    error: a stereo input asks for one (its pair alone gives depth)."""
     declared = source.frame_count()
     by_content = keyframes_on(cfg.keyframes, declared)
     dropped = dict.fromkeys(REASONS + (KEYFRAME_REASONS if by_content else ()), 0)
@@ -105,13 +108,19 @@ def select_frames(source: InputSource, cfg: IngestConfig, ctx: StageContext) -> 
     total = read if finished else declared
     if total is not None:
         dropped["not_read"] = max(0, total - read)
-    if len(candidates) < cfg.min_frames:
-        raise InputError(
-            f"only {len(candidates)} usable frame(s) in {source.path} (of {read}); endopipe needs "
-            f"at least {cfg.min_frames}: {_more_frames_hint(cfg, dropped)}"
-        )
-    return Selection(
+    selection = Selection(
         candidates, dropped, read, total, source_size, size, by_content, timeline or None
+    )
+    if len(candidates) < (cfg.min_frames if fewest is None else fewest):
+        raise InputError(too_few_frames(source, selection, cfg))
+    return selection
+
+
+def too_few_frames(source: InputSource, selection: Selection, cfg: IngestConfig) -> str:
+    """'only 2 usable frame(s) in X (of 2); endopipe needs at least 3: give more frames'."""
+    return (
+        f"only {len(selection.frames)} usable frame(s) in {source.path} (of {selection.read}); "
+        f"endopipe needs at least {cfg.min_frames}: {_more_frames_hint(cfg, selection.dropped)}"
     )
 
 

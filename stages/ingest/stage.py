@@ -13,7 +13,7 @@ from endopipe.pipeline.stage import Stage, StageContext, write_json
 from endopipe.stages.ingest.config import IngestConfig
 from endopipe.stages.ingest.masks import combine, fov_mask_for_sequence, specular_mask
 from endopipe.stages.ingest.prior_frames import FramePrior
-from endopipe.stages.ingest.selection import Selection, select_frames
+from endopipe.stages.ingest.selection import Selection, select_frames, too_few_frames
 from endopipe.stages.ingest.stereo_frames import FrameStereo
 from endopipe.stages.ingest.summary import IngestSummary
 from endopipe.stages.ingest.tool_frames import FrameTools
@@ -35,16 +35,23 @@ from endopipe.stages.io.sources import open_input
 
 __all__ = ["FrameEntry", "Ingest", "IngestConfig", "IngestSummary", "IngestView"]
 
+#: What a run of a stereo pair alone does, said once by ingest and kept in frames.json.
+ONE_PAIR = (
+    "one stereo pair ({n} frame(s), too few to pose): depth from the rig alone, in mm; no "
+    "camera path (one view has no motion to measure) and no field (one view teaches it nothing "
+    "the stereo does not already say)"
+)
+
 
 class Ingest(Stage):
     """Read frames, select them, mask the scope border and specular highlights."""
 
     name = "ingest"
     needs = ()
-    # 9: a calibration checked against the frames' size; 8: a rig checked against its images
-    # (pairing, rows); 7: a data set's metric depth in
-    # stereo/; 6: the user's depth prior
-    version = 9
+    # 10: a stereo pair alone; 9: a calibration checked against the frames' size; 8: a rig
+    # checked against its images (pairing, rows); 7: a data set's metric depth in stereo/;
+    # 6: the user's depth prior
+    version = 10
     Config = IngestConfig
     Summary = IngestSummary
     View = IngestView
@@ -57,7 +64,8 @@ class Ingest(Stage):
             format=ctx.case.kind,
             added=AddedInputs.of_case(ctx.case),
         )
-        selection = select_frames(source, cfg, ctx)
+        pair_alone = source.stereo is not None and cfg.stereo.mode != "off"
+        selection = select_frames(source, cfg, ctx, fewest=1 if pair_alone else None)
         frames, dropped, size = selection.frames, selection.dropped, selection.size
         images = [f.rgb for f in frames]  # at the working size already
         fov, fov_shape = fov_mask_for_sequence(images[:: max(1, len(images) // 12)], cfg.fov)
@@ -69,13 +77,22 @@ class Ingest(Stage):
         tools = FrameTools(source.tool_masks, cfg.tools)
         calibration = source_intrinsics(source, selection.source_size, size)
         intrinsics = calibration.camera if calibration else None
-        calibration_said = calibration.said if calibration else None
+        calibration_said = (calibration.said if calibration else None) or source.calibration_said
         if calibration_said:
             warn(ctx, calibration_said)
         stereo = FrameStereo(source.stereo, intrinsics, cfg.stereo, source.given_depth)
-        rig = stereo.check([f.source_index for f in frames], images)
+        kept = [f.source_index for f in frames]
+        rig = stereo.check(
+            kept, images if len(frames) >= cfg.min_frames else source_frames(source, kept)
+        )
         if rig is not None:
             ctx.log(rig.said)
+        one_pair = None
+        if len(frames) < cfg.min_frames:
+            if not stereo.active:
+                raise InputError(f"{too_few_frames(source, selection, cfg)} ({stereo.skipped})")
+            one_pair = ONE_PAIR.format(n=len(frames))
+            ctx.log(one_pair)
         prior = FramePrior(source.depth_prior, selection.source_size)
         prior_frames = 0
         if tools.active:
@@ -128,6 +145,7 @@ class Ingest(Stage):
             dropped_frames=selection.dropped_frames or {},
             stereo=stereo_info(stereo),
             depth_prior=str(source.depth_prior.folder) if source.depth_prior else None,
+            one_pair=one_pair is not None,
         )
         write_json(ctx.out / FRAMES_FILE, frames_file.model_dump(mode="json"))
         write_contact_sheet(
@@ -180,8 +198,16 @@ class Ingest(Stage):
             gt_frames_without_depth=gt.frames_without_depth,
             gt_frames_without_pose=gt.frames_without_pose,
             calibration_check=calibration_said,
+            one_pair=one_pair,
             warnings=[*([calibration_said] if calibration_said else []), *gt.warnings],
         )
+
+
+def source_frames(source: InputSource, kept: list[int]) -> list[np.ndarray]:
+    """The kept frames as the input holds them, at its own size (a pair alone: its rig is
+    checked on them, where the one frame has four times the features of the working size)."""
+    wanted = set(kept)
+    return [f.rgb for f in source.frames() if f.source_index in wanted]
 
 
 def ground_truth_coverage(

@@ -65,19 +65,23 @@ class FrameStereo:
 
     def check(self, sources: list[int], images: list[np.ndarray]) -> RigCheck | None:
         """Check a rig against its images (rig_check.py) on the kept frames (`sources`, their
-        source indices, and their RGB `images` at the working size): the pairing and the row
-        offset `of` then matches with. None without a rig to check."""
-        if not self.active or self.pairs is None or not self.cfg.check or len(sources) < 2:
+        source indices, and their RGB `images`: at the working size, or at the source's for a
+        pair alone, whose one frame must pin the rotation): the pairing and the row offset `of`
+        then matches with, in pixels of the working size. None without a rig to check."""
+        if not self.active or self.pairs is None or not self.cfg.check or not sources:
             return None
         h, w = images[0].shape[:2]
         by_source = dict(zip(sources, images, strict=True))
-        self.rig = check_rig(
+        rig = check_rig(
             sources,
             by_source.__getitem__,
             lambda s: self._right(s, (w, h)),
             self.cfg.max_offset,
             camera=self.camera.scaled(w, h) if self.camera is not None else None,
         )
+        if self.camera is not None and w != self.camera.width:
+            rig = rig.at_width(self.camera.width, w)
+        self.rig = rig
         if self.rig.refused is not None:
             if self.cfg.mode == "on":
                 raise InputError(f"ingest.stereo.mode=on but {self.rig.refused}")
@@ -98,10 +102,15 @@ class FrameStereo:
             return self._given(source_index, left, usable)
         assert self.pairs is not None and self.camera is not None
         rig = self.rig or RigCheck()
-        right = self._right(source_index + rig.frame_offset, (left.shape[1], left.shape[0]))
+        size = (left.shape[1], left.shape[0])
+        right = self.pairs.right(source_index + rig.frame_offset)
         if right is None:
             return None
-        right = mended_right(right, rig, self.camera.scaled(left.shape[1], left.shape[0]))
+        if rig.right_rotation is not None:  # turned at its own size: one resampling, not two
+            own = self.camera.scaled(right.shape[1], right.shape[0])
+            right = resize(mended_right(right, rig, own), size)
+        else:
+            right = mended_right(resize(right, size), rig, self.camera.scaled(*size))
         return match_depth(left, right, self.camera.fx, self.pairs.baseline_mm, self.cfg, usable)
 
     def _given(self, source_index: int, left: np.ndarray, usable: np.ndarray) -> np.ndarray | None:

@@ -40,6 +40,8 @@ class IngestSummary(Summary):
     #: the calibration checked against the frames (stages/io/calibration_check.py), in one line
     #: when it did not fit them as given (rescaled from another size, or doubtful); None: it fit
     calibration_check: str | None = None
+    #: a stereo pair alone (too few frames to pose), in one line: depth from the rig only
+    one_pair: str | None = None
     #: depth maps made elsewhere (`--depth-prior`, relative; 01_ingest/depth_prior/): the
     #: folder they were read from and how many kept frames had one (None: no prior given)
     depth_prior: str | None = None

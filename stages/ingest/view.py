@@ -112,6 +112,11 @@ class FramesFile(BaseModel):
         description="The folder the depth prior in depth_prior/ was read from (`--depth-prior`); "
         "None: none given.",
     )
+    one_pair: bool = Field(
+        False,
+        description="A stereo pair alone (too few frames to pose): its depth is the rig's, with "
+        "no camera path and no field.",
+    )
 
 
 class IngestView:
@@ -140,6 +145,11 @@ class IngestView:
     def frame(self, index: int) -> FrameEntry:
         """The entry of endopipe frame `index` (KeyError when ingest did not keep it)."""
         return self._by_index[index]
+
+    @property
+    def one_pair(self) -> bool:
+        """Whether the input is a stereo pair alone: depth from the rig, no path, no field."""
+        return self.file.one_pair
 
     @property
     def has_stereo(self) -> bool:

@@ -45,6 +45,9 @@ class InputSource:
         self.depth_prior: DepthPrior | None = None
         #: Metric depth the data set ships (EndoNeRF's depth/ in mm), by source_index, or None.
         self.given_depth: GivenDepth | None = None
+        #: What the reader found checking its calibration against the frames (a calibration
+        #: stated for another image size, rescaled), in one line; None: it fit as given.
+        self.calibration_said: str | None = None
         #: One line each of what the reader did to the input that the run should say (frames
         #: cropped to one size, a lens fitted to the data set's calibration).
         self.notes: list[str] = []

@@ -7,6 +7,7 @@ keyframe_1/
   left_depth_map.tiff            float32 x, y, z (mm) of each left pixel, unrectified; z = 0: none
   data/rgb.mp4                   left over right, each eye a frame's upper and lower half
   data/frame_data/frame_dataNNNNNN.json   "camera-pose": the left camera's 4x4 per frame
+  Left_Image.png, Right_Image.png  the keyframe's two eyes, unrectified
 ```
 
 As read by dimitrisPs/scared_toolkit (scaredtk/calibrator.py: the yaml's keys; scaredtk/io.py:
@@ -16,6 +17,9 @@ cv2.stereoRectify (alpha 0: no black border); the input's intrinsics are P1's pi
 truth's points are turned by R1 and projected by P1 (nearest point per pixel), and the known
 poses are the left camera turned the same way. The keyframe's depth is the video's first frame
 (the toolkit's interpolated sequences start at it).
+
+A keyframe folder without its video (SCARED's unit of evaluation: one left image, one right, a
+truth) is read as one stereo pair: one frame, its right eye, the same rectification.
 
 "camera-pose" is read as camera-to-world in the file's units: public loaders disagree on its
 direction and units (some invert it, some scale it by 1000), so it is kept as known poses, not
@@ -38,24 +42,36 @@ import numpy as np
 from endopipe.pipeline.cache import digest_path, digest_text
 from endopipe.pipeline.errors import InputError
 from endopipe.stages.camera import Camera
+from endopipe.stages.io.calibration_check import fit_to_frames
 from endopipe.stages.io.ground_truth import GroundTruthSource, holds_case_truth, open_case_truth
 from endopipe.stages.io.input_source import Frame, InputSource
 from endopipe.stages.io.messages import short_reason
 from endopipe.stages.io.stereo_pairs import StereoPairs
 
 NAME = "scared"
-LAYOUT = "endoscope_calibration.yaml, data/rgb.mp4 (left over right), data/frame_data/*.json"
+LAYOUT = (
+    "endoscope_calibration.yaml with data/rgb.mp4 (left over right) and data/frame_data/*.json, "
+    "or with Left_Image.png and Right_Image.png (one keyframe)"
+)
 GT_KIND = "exact"
 CALIBRATION = "endoscope_calibration.yaml"
 VIDEO = "data/rgb.mp4"
 FRAME_DATA = "data/frame_data"
 KEYFRAME_DEPTH = "left_depth_map.tiff"
+LEFT_IMAGE, RIGHT_IMAGE = "Left_Image.png", "Right_Image.png"
 FRAME_JSON = re.compile(r"^frame_data(\d+)\.json$")
 
 
 def is_sequence(path: Path) -> bool:
     path = Path(path)
-    return (path / CALIBRATION).is_file() and (path / VIDEO).is_file()
+    return (path / CALIBRATION).is_file() and ((path / VIDEO).is_file() or is_keyframe(path))
+
+
+def is_keyframe(path: Path) -> bool:
+    """One stereo pair without its video: the keyframe's two images alone."""
+    path = Path(path)
+    both = (path / LEFT_IMAGE).is_file() and (path / RIGHT_IMAGE).is_file()
+    return both and not (path / VIDEO).is_file()
 
 
 @dataclass(frozen=True)
@@ -69,6 +85,7 @@ class Rig:
     R: np.ndarray
     T: np.ndarray
     size: tuple[int, int]  # width, height of one eye
+    said: str | None = None  # the calibration rescaled to this size, in one line
 
     @cached_property
     def rectified(self) -> tuple[np.ndarray, ...]:
@@ -117,7 +134,32 @@ def read_calibration(path: Path, size: tuple[int, int]) -> Rig:
         fs.release()
     if K1.shape != (3, 3) or K2.shape != (3, 3) or R.shape != (3, 3):
         raise InputError(f"{file}: M1, M2 and R must be 3x3 matrices")
-    return Rig(K1, D1.ravel(), K2, D2.ravel(), R, T, size)
+    K1, K2, said = fitted_to_eyes(K1, K2, size, str(file))
+    return Rig(K1, D1.ravel(), K2, D2.ravel(), R, T, size, said)
+
+
+def fitted_to_eyes(
+    K1: np.ndarray, K2: np.ndarray, size: tuple[int, int], source: str
+) -> tuple[np.ndarray, np.ndarray, str | None]:
+    """Both eyes' matrices checked against the images' size (calibration_check.py): stated
+    for another size, both are brought to this one, and the line says so."""
+    fit = fit_to_frames(_camera_of(K1, size), source)
+    if fit.said is None or fit.camera.fx == K1[0, 0]:
+        return K1, K2, fit.said
+    factor = fit.camera.fx / K1[0, 0]
+    return (
+        _matrix_of(fit.camera),
+        _matrix_of(_camera_of(K2, size).zoomed(factor, factor, *size)),
+        fit.said,
+    )
+
+
+def _camera_of(K: np.ndarray, size: tuple[int, int]) -> Camera:
+    return Camera(width=size[0], height=size[1], fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2])
+
+
+def _matrix_of(k: Camera) -> np.ndarray:
+    return np.array([[k.fx, 0.0, k.cx], [0.0, k.fy, k.cy], [0.0, 0.0, 1.0]])
 
 
 def video_size(path: Path) -> tuple[int, int]:
@@ -128,6 +170,34 @@ def video_size(path: Path) -> tuple[int, int]:
             return int(stream.width), int(stream.height)
     except (av.FFmpegError, IndexError, OSError) as e:
         raise InputError(f"cannot read {Path(path) / VIDEO} ({short_reason(e)})") from None
+
+
+def read_eye(file: Path) -> np.ndarray:
+    """One keyframe image as RGB; one InputError line when it cannot be read."""
+    bgr = cv2.imread(str(file), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise InputError(f"cannot read {file} as an image")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def keyframe_eyes(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The keyframe's left and right images (RGB), of one size or one InputError line."""
+    left, right = read_eye(Path(path) / LEFT_IMAGE), read_eye(Path(path) / RIGHT_IMAGE)
+    if left.shape != right.shape:
+        raise InputError(
+            f"{Path(path) / LEFT_IMAGE} is {left.shape[1]}x{left.shape[0]} but {RIGHT_IMAGE} is "
+            f"{right.shape[1]}x{right.shape[0]}: a stereo pair has one size"
+        )
+    return left, right
+
+
+def eyes_size(path: Path) -> tuple[tuple[int, int], bool]:
+    """One eye's (width, height) and whether both eyes are there: from the video, else from
+    the keyframe's left image."""
+    if (Path(path) / VIDEO).is_file():
+        return eye_size(video_size(path))
+    left = read_eye(Path(path) / LEFT_IMAGE)
+    return (left.shape[1], left.shape[0]), True
 
 
 def eye_size(frame_size: tuple[int, int]) -> tuple[tuple[int, int], bool]:
@@ -207,6 +277,38 @@ class RightViews:
         return None
 
 
+class ScaredKeyframe(InputSource):
+    """A keyframe's two images alone: one rectified left frame and its right view."""
+
+    kind = NAME
+
+    def __init__(self, path: Path, rig: Rig, gt_dir: Path | None) -> None:
+        super().__init__(path, rig.camera(), gt_dir)
+        self.rig = rig
+
+    def _rectified(self) -> tuple[np.ndarray, np.ndarray]:
+        left, right = keyframe_eyes(self.path)
+        (lx, ly), (rx, ry) = self.rig.maps
+        return cv2.remap(left, lx, ly, cv2.INTER_LINEAR), cv2.remap(right, rx, ry, cv2.INTER_LINEAR)
+
+    def frames(self) -> Iterator[Frame]:
+        yield Frame(0, 0.0, self._rectified()[0])
+
+    def right_view(self, source_index: int) -> np.ndarray | None:
+        return self._rectified()[1] if source_index == 0 else None
+
+    def frame_count(self) -> int | None:
+        return 1
+
+    def digest(self) -> str:
+        parts = [self.kind, *(digest_path(self.path / f) for f in (LEFT_IMAGE, RIGHT_IMAGE))]
+        parts.append(digest_path(self.path / CALIBRATION))
+        return digest_text("|".join([*parts, *self.given_digests()]))
+
+    def ground_truth(self) -> GroundTruthSource | None:
+        return ground_truth(self.gt_dir) if self.gt_dir is not None else None
+
+
 def read_frame_poses(path: Path) -> list[np.ndarray] | None:
     """data/frame_data/*.json's "camera-pose" by frame number; None when there are none or a
     frame's is missing."""
@@ -230,7 +332,7 @@ def read_frame_poses(path: Path) -> list[np.ndarray] | None:
     return poses
 
 
-def open_sequence(path: Path, intrinsics: Camera | None = None) -> ScaredSource:
+def open_sequence(path: Path, intrinsics: Camera | None = None) -> InputSource:
     path = Path(path)
     if not is_sequence(path):
         raise InputError(f"{path} is not a SCARED keyframe ({LAYOUT})")
@@ -238,10 +340,28 @@ def open_sequence(path: Path, intrinsics: Camera | None = None) -> ScaredSource:
         raise InputError(
             "SCARED's frames are rectified with its own calibration; drop --intrinsics"
         )
-    size, stacked = eye_size(video_size(path))
+    size, stacked = eyes_size(path)
     rig = read_calibration(path, size)
     has_gt = (path / KEYFRAME_DEPTH).is_file() or holds_case_truth(path / "gt")
-    source = ScaredSource(path, rig, stacked, path if has_gt else None)
+    gt_dir = path if has_gt else None
+    source = open_pair_or_video(path, rig, stacked, gt_dir)
+    source.calibration_said = rig.said
+    return source
+
+
+def open_pair_or_video(path: Path, rig: Rig, stacked: bool, gt_dir: Path | None) -> InputSource:
+    """The keyframe's two images alone, or its video (with its poses when they are there)."""
+    if is_keyframe(path):
+        keyframe_eyes(path)  # two readable images of one size, or one line now
+        pair = ScaredKeyframe(path, rig, gt_dir)
+        pair.stereo = StereoPairs(
+            right=pair.right_view,
+            baseline_mm=rig.baseline_mm(),
+            source=str(path / CALIBRATION),
+            identity=digest_path(path / RIGHT_IMAGE),
+        )
+        return pair
+    source = ScaredSource(path, rig, stacked, gt_dir)
     if stacked:
         source.stereo = StereoPairs(
             right=source.right_view(),
@@ -293,7 +413,7 @@ class ScaredGroundTruth:
             raise InputError(f"cannot read SCARED depth {self.file}: {short_reason(e)}") from None
         if xyz.ndim != 3 or xyz.shape[2] != 3:
             raise InputError(f"{self.file} is not a 3-channel (x, y, z) image")
-        size, _ = eye_size(video_size(self.dir))
+        size, _ = eyes_size(self.dir)
         rig = read_calibration(self.dir, size)
         return rectified_depth(xyz, rig)
 

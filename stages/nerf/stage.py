@@ -454,14 +454,19 @@ def set_up_training(
     return TrainingSetUp(cfg, trainer, prior, ids, k, c2w, train_ids, held_ids, pos, refine)
 
 
+#: Why a stereo pair alone trains no field (NerfSummary.skipped).
+NO_FIELD_ONE_PAIR = "a stereo pair alone: one view, its depth the rig's"
+
+
 class Nerf(Stage):
     """NeRF with near-light shading and the lumen prior (TensoRF VM grid by default)."""
 
     name = "nerf"
     needs = ("ingest", "poses", "centerline")
-    # 9: the proposal grid, the depth rays rendered with the batch, exposures a channel, the
-    # fit measured; 8: the user's depth prior (relative) shapes the field; 7: stereo depth
-    version = 9
+    # 10: no field for a stereo pair alone; 9: the proposal grid, the depth rays rendered
+    # with the batch, exposures a channel, the fit measured; 8: the user's depth prior
+    # (relative) shapes the field; 7: stereo depth
+    version = 10
     Config = NerfConfig
     Summary = NerfSummary
     View = NerfView
@@ -478,6 +483,12 @@ class Nerf(Stage):
 
     def _run(self, ctx: StageContext[NerfConfig], cfg: NerfConfig) -> NerfSummary:
         ingest, poses = ctx.input(IngestView), ctx.input(PosesView)
+        if ingest.one_pair:
+            ctx.log(f"no field: {NO_FIELD_ONE_PAIR}")
+            return NerfSummary(
+                steps=0, train_frames=0, heldout_frames=0, train_s=0.0, rays_per_s=0.0,
+                skipped=NO_FIELD_ONE_PAIR,
+            )  # fmt: skip
         run = set_up_training(cfg, ingest, poses, ctx.input(CenterlineView), ctx.out, ctx.log)
         cfg, trainer = run.cfg, run.trainer
         if trainer.core_fraction < cfg.loss.core_fraction:

@@ -68,3 +68,5 @@ class NerfSummary(Summary):
     #: whether measured depth trained the field (SfM points, stereo, given depth, a depth prior):
     #: its expected depth is then what those rays fit (depth.field_depth auto); None: not recorded
     depth_supervised: bool | None = None
+    #: why no field was trained (a stereo pair alone); None: trained
+    skipped: str | None = None

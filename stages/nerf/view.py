@@ -77,6 +77,13 @@ class NerfView:
             return False
         return self.summary.time_nodes is not None
 
+    @property
+    def trained(self) -> bool:
+        """Whether a field was trained (a stereo pair alone has none: the summary says why)."""
+        if Manifest.load(self.folder) is None:
+            return self.model_path.is_file()
+        return self.summary.skipped is None
+
     def model(self, device: str = "cpu") -> NerfModel:
         """The trained NerfModel, in eval mode; its `meta` says which frames were held out."""
         from endopipe.stages.nerf.render import load_model  # torch: only to load the model

@@ -192,6 +192,32 @@ def from_still_camera(ingest: IngestView, cfg: PosesConfig, motion: FootageMotio
     )
 
 
+def from_one_pair(ingest: IngestView) -> Estimate:
+    """A stereo pair alone: its left camera is the world (one view has no path to pose), in the
+    rig's millimetres; a second frame of a two-frame input stays unposed (nothing relates it
+    to the first but a guess)."""
+    camera = ingest.intrinsics
+    if camera is None:  # ingest matched the pair: it had the rectified camera
+        raise InputError("a stereo pair alone needs its rectified camera (--intrinsics)")
+    first = ingest.frames[0].index
+    said = f"one stereo pair: frame {first}'s left camera is the world, in the rig's mm" + (
+        f"; {len(ingest.frames) - 1} other frame(s) not posed" if len(ingest.frames) > 1 else ""
+    )
+    verdict = PoseVerdict(
+        status="ok",
+        reasons=[said],
+        mapper="one stereo pair",
+        frames=[FrameVerdict(index=first, status="ok")],
+    )
+    return Estimate(
+        camera=camera,
+        colmap_model=camera_to_colmap(camera)[0],
+        c2w={first: np.eye(4)},
+        verdict=verdict,
+        info={"models": 1, "mapper": "one stereo pair"},
+    )
+
+
 def assumed_camera(ingest: IngestView, hfov_deg: float) -> Camera:
     """A pinhole with the principal point at the centre and the given horizontal field of view."""
     w, h = ingest.width, ingest.height

@@ -38,6 +38,7 @@ from endopipe.stages.poses.sources import (
     from_file,
     from_ground_truth,
     from_known,
+    from_one_pair,
     from_still_camera,
 )
 from endopipe.stages.poses.summary import KnownPosesCheck, PosesSummary
@@ -57,7 +58,9 @@ class Poses(Stage):
 
     name = "poses"
     needs = ("ingest",)
-    version = 8  # 8: the input's own poses used (source=known) or compared; 7: stereo scale
+    # 9: a stereo pair alone; 8: the input's own poses used (source=known) or compared;
+    # 7: stereo scale
+    version = 9
     Config = PosesConfig
     Summary = PosesSummary
     View = PosesView
@@ -78,10 +81,14 @@ class Poses(Stage):
         gt_metric = gt is not None and gt.units == "mm"
 
         motion = None
-        if cfg.motion.check:  # known poses too: the NeRF stage asks whether the scene moves
+        if (
+            cfg.motion.check and not ingest.one_pair
+        ):  # known poses too: the NeRF stage asks whether the scene moves
             motion = footage_motion(ingest, cfg.motion)
             ctx.log(motion.said)
-        if cfg.source == "gt":
+        if ingest.one_pair:
+            est = from_one_pair(ingest)
+        elif cfg.source == "gt":
             est = from_ground_truth(ingest, gt_poses)
         elif cfg.source == "file":
             est = from_file(ingest, cfg)
@@ -92,8 +99,9 @@ class Poses(Stage):
         else:
             est = from_colmap(ingest, cfg, ctx)
 
-        check_registered(len(est.c2w), n, cfg)
-        if cfg.source != "colmap" and cfg.triangulate_known and not len(est.xyz):
+        if not ingest.one_pair:
+            check_registered(len(est.c2w), n, cfg)
+        if cfg.source != "colmap" and cfg.triangulate_known and not len(est.xyz) and n > 1:
             triangulate(est, ingest, cfg, ctx)
 
         aligned = False
@@ -107,7 +115,9 @@ class Poses(Stage):
             metric = aligned and gt_metric
         metric_from = "ground truth" if metric else None
         scaled = None
-        if not metric and ingest.has_stereo:
+        if ingest.one_pair:  # the world is the left camera in the rig's own millimetres
+            metric, metric_from = True, ingest.stereo_measured_by
+        elif not metric and ingest.has_stereo:
             scaled, metric_from = scale_by_stereo(est, ingest, motion, ctx.log)
             metric = metric_from is not None
         errors = {}
@@ -134,11 +144,12 @@ class Poses(Stage):
         verdict = assess(est, cfg, ingest)
         verdict.motion = motion
         gate(verdict, cfg)
-        write_outputs(ctx, ingest, est, cfg.source, metric)
+        source = "one stereo pair" if ingest.one_pair else cfg.source
+        write_outputs(ctx, ingest, est, source, metric)
         verdict.write(ctx.out / "verdict.json")
         k = est.camera
         summary = PosesSummary(
-            source=cfg.source,
+            source=source,
             registered=len(est.c2w),
             total=n,
             registered_fraction=registered_fraction(len(est.c2w), n),
