@@ -266,8 +266,8 @@ def synth(
     shape: Annotated[
         str | None,
         typer.Option(
-            help="colon | cavity (unset: cavity for the laparoscopic layouts hamlyn and scared, "
-            "colon otherwise)."
+            help="colon | cavity (unset: cavity for the laparoscopic layouts hamlyn, scared and "
+            "stereomis, colon otherwise)."
         ),
     ] = None,
     lens: Annotated[
@@ -321,7 +321,8 @@ def synth(
         typer.Option(
             "--stereo",
             help="A right eye 5 mm along +x too (--layout hamlyn: image02/, extrinsics.txt; "
-            "scared: its right view; endonerf: depth/ matched from it, as EndoNeRF's own).",
+            "scared, stereomis: its right view; endonerf: depth/ matched from it, as EndoNeRF's "
+            "own).",
         ),
     ] = False,
 ) -> None:

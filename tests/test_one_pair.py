@@ -21,9 +21,9 @@ from endopipe.stages.io.datasets import detect_dataset, open_dataset
 from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
 from endopipe.synth import SynthConfig, generate_case
+from endopipe.synth.scared_sink import spoil_calibration
 
 BASELINE_MM = 5.0
-CALIBRATION = "endoscope_calibration.yaml"
 
 
 @pytest.fixture(scope="module")
@@ -39,27 +39,11 @@ def keyframe(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def variant(keyframe: Path, folder: Path, turn_deg: float = 0.0, half: bool = False) -> Path:
-    """A copy of the keyframe whose calibration's rotation is turned by `turn_deg` about the
-    rows' axis (and a quarter of that about the optical axis) or stated for half the image
-    size."""
+    """A copy of the keyframe whose calibration is turned by `turn_deg` about the rows' axis
+    (and a quarter of that about the optical axis) or stated for half the image size."""
     out = folder / "keyframe_1"
     shutil.copytree(keyframe, out)
-    fs = cv2.FileStorage(str(out / CALIBRATION), cv2.FILE_STORAGE_READ)
-    m = {k: fs.getNode(k).mat() for k in ("M1", "D1", "M2", "D2", "R", "T")}
-    fs.release()
-    if turn_deg:
-        turn, _ = cv2.Rodrigues(np.radians([turn_deg, 0.0, 0.25 * turn_deg]))
-        m["R"] = turn @ m["R"]
-    if half:
-        for name in ("M1", "M2"):
-            k = m[name].copy()
-            k[:2, :2] /= 2
-            k[:2, 2] = (k[:2, 2] + 0.5) / 2 - 0.5
-            m[name] = k
-    fs = cv2.FileStorage(str(out / CALIBRATION), cv2.FILE_STORAGE_WRITE)
-    for name, value in m.items():
-        fs.write(name, value)
-    fs.release()
+    spoil_calibration(out, (turn_deg, 0.0, 0.25 * turn_deg), half)
     return out
 
 

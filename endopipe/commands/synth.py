@@ -14,11 +14,11 @@ if TYPE_CHECKING:
 
 #: --layout: endopipe's case folder, EndoNeRF's layout instead of its frames, or both (EndoNeRF's
 #: in the case's endonerf/ folder); a rectified Hamlyn sequence (hamlyn) or EDaM's copy (edam).
-LAYOUTS = ("endopipe", "endonerf", "both", "hamlyn", "edam", "c3vd", "scared")
+LAYOUTS = ("endopipe", "endonerf", "both", "hamlyn", "edam", "c3vd", "scared", "stereomis")
 #: The layouts of laparoscopic data sets: their scene, unless --shape names one, is the cavity,
 #: whose walls (12-33 mm) lie at a laparoscope's working distance; a colon's near wall (8 mm)
 #: would put a third of the width out of a 5 mm rig's right eye.
-LAPAROSCOPIC_LAYOUTS = ("hamlyn", "scared")
+LAPAROSCOPIC_LAYOUTS = ("hamlyn", "scared", "stereomis")
 #: --stereo: the right eye's baseline, mm (Hamlyn's rig: about 5).
 STEREO_BASELINE_MM = 5.0
 
@@ -70,8 +70,8 @@ def synth_case(
     sink = other_layout(layout, cfg.stereo_baseline_mm)
     if stereo and (sink is None or not sink.takes_right):
         raise EndopipeError(
-            f"synth --stereo: the {layout} layout has no right eye (hamlyn, scared and endonerf "
-            "have one)"
+            f"synth --stereo: the {layout} layout has no right eye (hamlyn, scared, stereomis and "
+            "endonerf have one)"
         )
     ensure_writable(out_dir.parent if out_dir.parent != Path("") else Path("."))
     summary = write_synth(out_dir, cfg, sink)
@@ -94,7 +94,7 @@ def other_layout(layout: str, baseline_mm: float | None = None) -> Layout | None
         return None
     if layout in ("hamlyn", "edam"):
         return data_set_layout(layout, baseline_mm)
-    if layout in ("c3vd", "scared"):
+    if layout in ("c3vd", "scared", "stereomis"):
         return lens_layout(layout, baseline_mm)
     from functools import partial
 
@@ -123,17 +123,19 @@ def data_set_layout(layout: str, baseline_mm: float | None) -> Layout:
 
 
 def lens_layout(layout: str, baseline_mm: float | None) -> Layout:
-    """C3VD's layout (its calibration and model mesh) or a SCARED keyframe (its right eye at
-    `baseline_mm` when given), in place of endopipe's frames (gt/ kept beside it)."""
+    """C3VD's layout (its calibration and model mesh), a SCARED keyframe or a StereoMIS sequence
+    (its right eye at `baseline_mm` when given), in place of endopipe's frames (gt/ kept)."""
     from functools import partial
 
     from endopipe.synth import Layout
     from endopipe.synth.c3vd_sink import C3VDSink
     from endopipe.synth.scared_sink import ScaredSink
+    from endopipe.synth.stereomis_sink import StereoMISSink
 
     if layout == "c3vd":
         return Layout("c3vd", C3VDSink)
-    return Layout("scared", partial(ScaredSink, baseline_mm=baseline_mm), takes_right=True)
+    sink = StereoMISSink if layout == "stereomis" else ScaredSink
+    return Layout(layout, partial(sink, baseline_mm=baseline_mm), takes_right=True)
 
 
 def write_synth(out_dir: Path, cfg: SynthConfig, layout: Layout | None = None) -> SynthSummary:

@@ -18,6 +18,8 @@ class FrameTools:
     """Tool masks for the kept frames, and how to say where they came from."""
 
     def __init__(self, masks: ToolMasks | None, cfg: ToolsConfig) -> None:
+        if masks is not None and masks.polarity is not None and cfg.polarity == "auto":
+            cfg = cfg.model_copy(update={"polarity": masks.polarity})  # as the data set draws them
         self.masks, self.cfg = masks, cfg
         self.detect = masks is None and cfg.detect == "auto"
 

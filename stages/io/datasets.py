@@ -2,8 +2,9 @@
 
 The data sets are read in place, one module each: Hamlyn ("hamlyn", rectified release), C3VD
 ("c3vd"), SimCol3D ("simcol3d"), C3VD v3's preview frames ("c3vd_preview"), EndoNeRF's
-layout ("endonerf") and SCARED's keyframes ("scared"). Detection looks at the files, never at
-folder names, so a renamed copy is still recognised; `--format` overrides it.
+layout ("endonerf"), SCARED's keyframes ("scared") and StereoMIS's sequences ("stereomis").
+Detection looks at the files, never at folder names, so a renamed copy is still recognised;
+`--format` overrides it.
 """
 
 from __future__ import annotations
@@ -13,14 +14,14 @@ from types import ModuleType
 
 from endopipe.pipeline.errors import InputError
 from endopipe.stages.camera import Camera
-from endopipe.stages.io import c3vd, c3vd_preview, endonerf, hamlyn, scared, simcol3d
+from endopipe.stages.io import c3vd, c3vd_preview, endonerf, hamlyn, scared, simcol3d, stereomis
 from endopipe.stages.io.ground_truth import GroundTruthSource, open_case_truth
 from endopipe.stages.io.input_source import InputSource
 
 #: Data set readers, in detection order. Each module has NAME, LAYOUT, GT_KIND,
 #: is_sequence(path), open_sequence(path, intrinsics) and ground_truth(gt_dir).
 READERS: dict[str, ModuleType] = {
-    m.NAME: m for m in (hamlyn, c3vd, simcol3d, c3vd_preview, endonerf, scared)
+    m.NAME: m for m in (hamlyn, c3vd, simcol3d, c3vd_preview, endonerf, scared, stereomis)
 }
 
 DESCRIPTIONS = {

@@ -31,22 +31,26 @@ from __future__ import annotations
 import json
 import re
 from collections.abc import Iterator
-from dataclasses import dataclass
-from functools import cached_property
 from pathlib import Path
 
-import av
 import cv2
 import numpy as np
 
 from endopipe.pipeline.cache import digest_path, digest_text
 from endopipe.pipeline.errors import InputError
 from endopipe.stages.camera import Camera
-from endopipe.stages.io.calibration_check import fit_to_frames
 from endopipe.stages.io.ground_truth import GroundTruthSource, holds_case_truth, open_case_truth
 from endopipe.stages.io.input_source import Frame, InputSource
 from endopipe.stages.io.messages import short_reason
 from endopipe.stages.io.stereo_pairs import StereoPairs
+from endopipe.stages.io.stereo_rig import (
+    Rig,
+    StackedVideo,
+    eye_size,
+    fitted_to_eyes,
+    own_calibration_only,
+    video_size,
+)
 
 NAME = "scared"
 LAYOUT = (
@@ -72,44 +76,6 @@ def is_keyframe(path: Path) -> bool:
     path = Path(path)
     both = (path / LEFT_IMAGE).is_file() and (path / RIGHT_IMAGE).is_file()
     return both and not (path / VIDEO).is_file()
-
-
-@dataclass(frozen=True)
-class Rig:
-    """The calibrated pair and its rectification at one image size."""
-
-    K1: np.ndarray
-    D1: np.ndarray
-    K2: np.ndarray
-    D2: np.ndarray
-    R: np.ndarray
-    T: np.ndarray
-    size: tuple[int, int]  # width, height of one eye
-    said: str | None = None  # the calibration rescaled to this size, in one line
-
-    @cached_property
-    def rectified(self) -> tuple[np.ndarray, ...]:
-        """R1, R2, P1, P2 of cv2.stereoRectify (alpha 0, principal points made equal)."""
-        R1, R2, P1, P2, *_ = cv2.stereoRectify(
-            self.K1, self.D1, self.K2, self.D2, self.size, self.R, self.T, alpha=0
-        )
-        return R1, R2, P1, P2
-
-    @cached_property
-    def maps(self) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
-        R1, R2, P1, P2 = self.rectified
-        left = cv2.initUndistortRectifyMap(self.K1, self.D1, R1, P1, self.size, cv2.CV_32FC1)
-        right = cv2.initUndistortRectifyMap(self.K2, self.D2, R2, P2, self.size, cv2.CV_32FC1)
-        return left, right
-
-    def camera(self) -> Camera:
-        P1 = self.rectified[2]
-        w, h = self.size
-        return Camera(width=w, height=h, fx=P1[0, 0], fy=P1[1, 1], cx=P1[0, 2], cy=P1[1, 2])
-
-    def baseline_mm(self) -> float:
-        P2 = self.rectified[3]
-        return float(abs(P2[0, 3] / P2[0, 0]))
 
 
 def read_calibration(path: Path, size: tuple[int, int]) -> Rig:
@@ -138,40 +104,6 @@ def read_calibration(path: Path, size: tuple[int, int]) -> Rig:
     return Rig(K1, D1.ravel(), K2, D2.ravel(), R, T, size, said)
 
 
-def fitted_to_eyes(
-    K1: np.ndarray, K2: np.ndarray, size: tuple[int, int], source: str
-) -> tuple[np.ndarray, np.ndarray, str | None]:
-    """Both eyes' matrices checked against the images' size (calibration_check.py): stated
-    for another size, both are brought to this one, and the line says so."""
-    fit = fit_to_frames(_camera_of(K1, size), source)
-    if fit.said is None or fit.camera.fx == K1[0, 0]:
-        return K1, K2, fit.said
-    factor = fit.camera.fx / K1[0, 0]
-    return (
-        _matrix_of(fit.camera),
-        _matrix_of(_camera_of(K2, size).zoomed(factor, factor, *size)),
-        fit.said,
-    )
-
-
-def _camera_of(K: np.ndarray, size: tuple[int, int]) -> Camera:
-    return Camera(width=size[0], height=size[1], fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2])
-
-
-def _matrix_of(k: Camera) -> np.ndarray:
-    return np.array([[k.fx, 0.0, k.cx], [0.0, k.fy, k.cy], [0.0, 0.0, 1.0]])
-
-
-def video_size(path: Path) -> tuple[int, int]:
-    """(width, height) of rgb.mp4's frames; one InputError line when it is not a video."""
-    try:
-        with av.open(str(Path(path) / VIDEO)) as container:
-            stream = container.streams.video[0]
-            return int(stream.width), int(stream.height)
-    except (av.FFmpegError, IndexError, OSError) as e:
-        raise InputError(f"cannot read {Path(path) / VIDEO} ({short_reason(e)})") from None
-
-
 def read_eye(file: Path) -> np.ndarray:
     """One keyframe image as RGB; one InputError line when it cannot be read."""
     bgr = cv2.imread(str(file), cv2.IMREAD_COLOR)
@@ -195,86 +127,21 @@ def eyes_size(path: Path) -> tuple[tuple[int, int], bool]:
     """One eye's (width, height) and whether both eyes are there: from the video, else from
     the keyframe's left image."""
     if (Path(path) / VIDEO).is_file():
-        return eye_size(video_size(path))
+        return eye_size(video_size(path / VIDEO))
     left = read_eye(Path(path) / LEFT_IMAGE)
     return (left.shape[1], left.shape[0]), True
 
 
-def eye_size(frame_size: tuple[int, int]) -> tuple[tuple[int, int], bool]:
-    """One eye's (width, height) and whether the frames hold both (taller than wide)."""
-    w, h = frame_size
-    stacked = h > w
-    return ((w, h // 2) if stacked else (w, h)), stacked
-
-
-class ScaredSource(InputSource):
+class ScaredSource(StackedVideo):
     """The rectified left eye of rgb.mp4, frame by frame."""
 
     kind = NAME
 
     def __init__(self, path: Path, rig: Rig, stacked: bool, gt_dir: Path | None) -> None:
-        super().__init__(path, rig.camera(), gt_dir)
-        self.rig, self.stacked = rig, stacked
-        self.fps = 25.0
-
-    def _eyes(self) -> Iterator[tuple[int, float | None, np.ndarray, np.ndarray | None]]:
-        """(index, time, left, right or None), unrectified, in order."""
-        w, h = self.rig.size
-        try:
-            with av.open(str(self.path / VIDEO)) as container:
-                stream = container.streams.video[0]
-                self.fps = float(stream.average_rate or 25.0)
-                for i, frame in enumerate(container.decode(video=0)):
-                    rgb = frame.to_ndarray(format="rgb24")
-                    t = float(frame.time) if frame.time is not None else i / self.fps
-                    yield i, t, rgb[:h, :w], (rgb[h : 2 * h, :w] if self.stacked else None)
-        except av.FFmpegError as e:
-            raise InputError(f"{self.path / VIDEO} is damaged ({short_reason(e)})") from None
-
-    def frames(self) -> Iterator[Frame]:
-        (mx, my), _ = self.rig.maps
-        for i, t, left, _ in self._eyes():
-            yield Frame(i, t, cv2.remap(left, mx, my, cv2.INTER_LINEAR))
-
-    def right_view(self) -> RightViews:
-        return RightViews(self)
-
-    def frame_count(self) -> int | None:
-        try:
-            with av.open(str(self.path / VIDEO)) as container:
-                return int(container.streams.video[0].frames or 0) or None
-        except (av.FFmpegError, OSError):
-            return None
-
-    def digest(self) -> str:
-        parts = [self.kind, digest_path(self.path / VIDEO), digest_path(self.path / CALIBRATION)]
-        if self.known_poses is not None:
-            parts.append(digest_text(repr([p.round(9).tolist() for p in self.known_poses])))
-        return digest_text("|".join([*parts, *self.given_digests()]))
+        super().__init__(path, path / VIDEO, path / CALIBRATION, rig, stacked, gt_dir)
 
     def ground_truth(self) -> GroundTruthSource | None:
         return ground_truth(self.gt_dir) if self.gt_dir is not None else None
-
-
-class RightViews:
-    """The rectified right eye by source_index, decoding forward and starting again only when
-    an earlier frame is asked for (a matcher walks the frames in order)."""
-
-    def __init__(self, source: ScaredSource) -> None:
-        self.source = source
-        self._it: Iterator | None = None
-        self._at = -1
-
-    def __call__(self, source_index: int) -> np.ndarray | None:
-        if self._it is None or source_index <= self._at:
-            self._it, self._at = self.source._eyes(), -1
-        for i, _, _, right in self._it:
-            self._at = i
-            if i == source_index:
-                (mx, my) = self.source.rig.maps[1]
-                return None if right is None else cv2.remap(right, mx, my, cv2.INTER_LINEAR)
-        self._it = None
-        return None
 
 
 class ScaredKeyframe(InputSource):
@@ -334,12 +201,7 @@ def read_frame_poses(path: Path) -> list[np.ndarray] | None:
 
 def open_sequence(path: Path, intrinsics: Camera | None = None) -> InputSource:
     path = Path(path)
-    if not is_sequence(path):
-        raise InputError(f"{path} is not a SCARED keyframe ({LAYOUT})")
-    if intrinsics is not None:
-        raise InputError(
-            "SCARED's frames are rectified with its own calibration; drop --intrinsics"
-        )
+    own_calibration_only(path, is_sequence(path), "SCARED keyframe", LAYOUT, intrinsics)
     size, stacked = eyes_size(path)
     rig = read_calibration(path, size)
     has_gt = (path / KEYFRAME_DEPTH).is_file() or holds_case_truth(path / "gt")
@@ -362,18 +224,10 @@ def open_pair_or_video(path: Path, rig: Rig, stacked: bool, gt_dir: Path | None)
         )
         return pair
     source = ScaredSource(path, rig, stacked, gt_dir)
-    if stacked:
-        source.stereo = StereoPairs(
-            right=source.right_view(),
-            baseline_mm=rig.baseline_mm(),
-            source=str(path / CALIBRATION),
-            identity=digest_path(path / VIDEO),
-        )
+    source.stereo = source.stereo_pairs()
     poses = read_frame_poses(path)
     if poses is not None:
-        turn = np.eye(4)
-        turn[:3, :3] = rig.rectified[0].T  # the rectified camera: X_cam = R1^T X_rect
-        source.known_poses = [p @ turn for p in poses]
+        source.known_poses = rig.rectified_poses(poses)
         source.known_poses_from = f"{path / FRAME_DATA} (camera-pose, rectified by R1)"
     return source
 

@@ -25,13 +25,17 @@ class ToolMasks:
 
     folder: Path
     files: dict[int, Path] = field(default_factory=dict)
+    #: How the data set's masks are drawn when it says so (StereoMIS: nonzero = tissue, so
+    #: "black_is_tool"); None: as `ingest.tools.polarity` says.
+    polarity: str | None = None
 
     def file(self, source_index: int) -> Path | None:
         return self.files.get(source_index)
 
     def digest(self) -> str:
         """The masks are part of the input: a changed mask must re-run ingest."""
-        return digest_text("|".join(f"{i}:{digest_path(p)}" for i, p in sorted(self.files.items())))
+        files = "|".join(f"{i}:{digest_path(p)}" for i, p in sorted(self.files.items()))
+        return digest_text(files if self.polarity is None else f"{files}|{self.polarity}")
 
 
 def numbered_masks(folder: Path) -> dict[int, Path]:

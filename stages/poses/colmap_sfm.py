@@ -545,9 +545,12 @@ def colmap_errors(step: str) -> Iterator[None]:
 
 @contextmanager
 def colmap_logging(verbose: bool) -> Iterator[None]:
-    """COLMAP logs every step to stderr; keep only errors unless asked."""
+    """COLMAP logs every step to stderr: nothing unless asked. Its errors come back as
+    exceptions (`colmap_errors`) or as our own lines on what it found; logged, they are glog
+    lines beside ours ("Cannot continue with empty pose graph" where we say "no model", and
+    "Stopping thread..." on a Ctrl-C or SIGTERM)."""
     before = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 0 if verbose else 2
+    pycolmap.logging.minloglevel = 0 if verbose else 3
     try:
         yield
     finally:
