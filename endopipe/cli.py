@@ -271,7 +271,11 @@ def synth(
         ),
     ] = None,
     lens: Annotated[
-        str, typer.Option(help="pinhole | barrel (OpenCV k1,k2) | fisheye (OpenCV equidistant)")
+        str,
+        typer.Option(
+            help="pinhole | barrel (OpenCV k1,k2) | fisheye (OpenCV equidistant) | c3vd (C3VD's "
+            "colonoscope: its published calibration; with --layout c3vd its folder as it ships)"
+        ),
     ] = "pinhole",
     fov_diag: Annotated[
         float | None,

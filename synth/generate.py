@@ -87,7 +87,8 @@ class SynthConfig(BaseModel):
     lens: LensName = Field(
         "pinhole",
         description="pinhole; barrel: OpenCV k1 -0.3, k2 0.06 (110 deg diagonal); fisheye: "
-        "OpenCV equidistant k1 -0.05, k2 0.01 (140 deg diagonal).",
+        "OpenCV equidistant k1 -0.05, k2 0.01 (140 deg diagonal); c3vd: C3VD's colonoscope (its "
+        "published calibration; a 5:4 image).",
     )
     fov_diag_deg: float | None = Field(
         None,
@@ -187,7 +188,7 @@ def describe(cfg: SynthConfig, intr: Camera, events: Events) -> dict:
         meta["lens"] = {
             "name": cfg.lens,
             "model": intr.model,
-            "dist": list(LENSES[cfg.lens].dist or []),
+            "dist": list(intr.dist or []),
             "fx": intr.fx,
             "fov_diag_deg": cfg.fov_diag_deg or LENSES[cfg.lens].fov_diag_deg,
         }

@@ -10,7 +10,9 @@ the image's outer corners, at (-0.5, -0.5) and (W - 0.5, H - 0.5), see `fov_diag
   default: the corner sits at 0.64 of its pinhole radius. 9 k1^2 < 20 k2, so d r_d / d r =
   1 + 3 k1 r^2 + 5 k2 r^4 has no real root: the radial map never folds back, at any radius.
   COLMAP's OPENCV model holds it exactly (no k3);
-- fisheye: OpenCV equidistant, k1 = -0.05, k2 = 0.01, 140 deg diagonal by default.
+- fisheye: OpenCV equidistant, k1 = -0.05, k2 = 0.01, 140 deg diagonal by default;
+- c3vd: C3VD's CF-HQ190L colonoscope, the fisheye fitted to its published omnidirectional
+  calibration (c3vd_lens.py), at any 5:4 image size.
 
 Vignetting: linear intensity times 1 - S (r / r_corner)^2, r the distance from the principal
 point in pixels, r_corner that of the farthest outer image corner: the corners get 1 - S of the
@@ -26,7 +28,7 @@ import numpy as np
 
 from endopipe.stages.camera import Camera, distort_normalised, pixel_grid
 
-LensName = Literal["pinhole", "barrel", "fisheye"]
+LensName = Literal["pinhole", "barrel", "fisheye", "c3vd"]
 
 
 @dataclass(frozen=True)
@@ -42,6 +44,7 @@ LENSES: dict[str, Lens] = {
     "pinhole": Lens("pinhole", None, None),
     "barrel": Lens("opencv", (-0.3, 0.06, 0.0, 0.0), 110.0),
     "fisheye": Lens("fisheye", (-0.05, 0.01, 0.0, 0.0), 140.0),
+    "c3vd": Lens("fisheye", None, None),  # C3VD's scope: its published calibration (c3vd_lens.py)
 }
 
 
@@ -62,7 +65,12 @@ def lens_camera(
     width: int, height: int, name: LensName, fov_deg: float, fov_diag_deg: float | None
 ) -> Camera:
     """The synthetic camera: `fov_diag_deg` (or the lens's default) across the image diagonal;
-    a pinhole without either keeps `fov_deg` across the width, the numbers synth always had."""
+    a pinhole without either keeps `fov_deg` across the width, the numbers synth always had.
+    C3VD's scope is its published calibration, whatever the field of view asked."""
+    if name == "c3vd":
+        from endopipe.synth.c3vd_lens import c3vd_camera
+
+        return c3vd_camera(width, height)
     lens = LENSES[name]
     diag = fov_diag_deg if fov_diag_deg is not None else lens.fov_diag_deg
     if diag is None:

@@ -67,6 +67,29 @@ def test_the_calibration_is_the_lens(case: tuple[Path, SynthConfig]) -> None:
     assert "px RMS" in source.notes[0] and "calib_results.txt" in source.notes[0]
 
 
+def test_c3vds_own_lens_ships_in_its_calibration_folder(tmp_path: Path) -> None:
+    """`synth --layout c3vd --lens c3vd`: frames rendered through C3VD's published lens, its
+    calibration written as C3VD ships it (a params folder beside the sequence, a format file and
+    a values file): the reader finds it, reads the published numbers, and its lens is the one the
+    frames were rendered through."""
+    from endopipe.synth.c3vd_lens import CF_HQ190L, PARAMS_FOLDER, VALUES_FILE, c3vd_lens
+
+    seq = tmp_path / "cecum_t1_a"
+    cfg = SynthConfig(seed=2, frames=2, width=80, height=64, lens="c3vd")
+    generate_case(seq, cfg, layout=other_layout("c3vd", lens="c3vd"))
+    assert not (seq / "calib_results.txt").exists()
+    values = tmp_path / PARAMS_FOLDER / VALUES_FILE
+    lens = read_ocam(values)
+    assert "named by" in lens.source and lens.width == 80
+    assert lens.stretch == c3vd_lens(80, 64).stretch
+    assert lens.poly[0] == pytest.approx(CF_HQ190L["a0"] * 80 / 1350, rel=1e-12)
+    source = open_dataset(seq, "c3vd")
+    k, truth = source.intrinsics, intrinsics_for(cfg)
+    assert k is not None and VALUES_FILE in source.notes[0]
+    # the same fit of the same numbers (written to 15 digits): 1.5e-6 deg apart
+    assert angles_deg(image_directions(k), image_directions(truth)).max() < 1e-4
+
+
 def test_the_model_mesh_is_the_mesh_stage_truth(case: tuple[Path, SynthConfig]) -> None:
     path, cfg = case
     gt = case_ground_truth(path)

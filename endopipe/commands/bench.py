@@ -110,7 +110,9 @@ def synth_input(inputs: Path, case: BenchCase, console) -> Path:
                 still_camera=case.still_camera,
                 stereo_baseline_mm=STEREO_BASELINE_MM if case.stereo else None,
             ),
-            layout=other_layout(case.layout, STEREO_BASELINE_MM if case.stereo else None),
+            layout=other_layout(
+                case.layout, STEREO_BASELINE_MM if case.stereo else None, case.lens
+            ),
         )
     return src
 

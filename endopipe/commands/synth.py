@@ -67,7 +67,7 @@ def synth_case(
         raise EndopipeError(f"synth {'.'.join(map(str, err['loc']))}: {err['msg']}") from None
     if layout not in LAYOUTS:
         raise EndopipeError(f"synth layout: {layout} is none of {', '.join(LAYOUTS)}")
-    sink = other_layout(layout, cfg.stereo_baseline_mm)
+    sink = other_layout(layout, cfg.stereo_baseline_mm, cfg.lens)
     if stereo and (sink is None or not sink.takes_right):
         raise EndopipeError(
             f"synth --stereo: the {layout} layout has no right eye (hamlyn, scared, stereomis and "
@@ -86,16 +86,19 @@ def synth_case(
     )
 
 
-def other_layout(layout: str, baseline_mm: float | None = None) -> Layout | None:
+def other_layout(
+    layout: str, baseline_mm: float | None = None, lens: str = "pinhole"
+) -> Layout | None:
     """EndoNeRF's layout, written by the export library as the frames are rendered (its depth/
     matched from a right eye at `baseline_mm` when given); Hamlyn's and EDaM's, by the synth
-    library's sinks (Hamlyn's with the right eye at `baseline_mm`)."""
+    library's sinks (Hamlyn's with the right eye at `baseline_mm`); C3VD's with its own
+    calibration folder when the `lens` is C3VD's."""
     if layout == "endopipe":
         return None
     if layout in ("hamlyn", "edam"):
         return data_set_layout(layout, baseline_mm)
     if layout in ("c3vd", "scared", "stereomis"):
-        return lens_layout(layout, baseline_mm)
+        return lens_layout(layout, baseline_mm, lens)
     from functools import partial
 
     from endopipe.export.endonerf_sink import EndoNerfSink
@@ -122,7 +125,7 @@ def data_set_layout(layout: str, baseline_mm: float | None) -> Layout:
     return Layout("hamlyn", partial(HamlynSink, baseline_mm=baseline_mm), takes_right=True)
 
 
-def lens_layout(layout: str, baseline_mm: float | None) -> Layout:
+def lens_layout(layout: str, baseline_mm: float | None, lens: str = "pinhole") -> Layout:
     """C3VD's layout (its calibration and model mesh), a SCARED keyframe or a StereoMIS sequence
     (its right eye at `baseline_mm` when given), in place of endopipe's frames (gt/ kept)."""
     from functools import partial
@@ -133,7 +136,7 @@ def lens_layout(layout: str, baseline_mm: float | None) -> Layout:
     from endopipe.synth.stereomis_sink import StereoMISSink
 
     if layout == "c3vd":
-        return Layout("c3vd", C3VDSink)
+        return Layout("c3vd", partial(C3VDSink, shipped_lens=lens == "c3vd"))
     sink = StereoMISSink if layout == "stereomis" else ScaredSink
     return Layout(layout, partial(sink, baseline_mm=baseline_mm), takes_right=True)
 

@@ -253,6 +253,12 @@ class StereoConfig(BaseModel):
         description="Matches under this disparity (px at the working size) are left unknown: "
         "too far for the baseline to measure well (half a pixel off is 10% of the depth there).",
     )
+    matcher_mode: Literal["hh", "hh4", "3way", "sgbm"] = Field(
+        "hh",
+        description="StereoSGBM's mode: hh, the full 8-path pass (scripts/stereo_matchers.py: "
+        "AbsRel a quarter lower than 3way on the synthetic stereo cases, 4% on the real Hamlyn "
+        "clip, 1.5x the time); hh4 most of that at 3way's speed; 3way; sgbm (5 paths).",
+    )
     block_size: int = Field(5, ge=1, le=11, description="StereoSGBM's matched block, px (odd).")
     uniqueness: int = Field(
         10,

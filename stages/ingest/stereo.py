@@ -21,6 +21,13 @@ from endopipe.stages.ingest.config import StereoConfig
 
 #: StereoSGBM's disparities are fixed point with 4 fractional bits.
 SUBPIXEL = 16.0
+#: ingest.stereo.matcher_mode -> StereoSGBM's mode.
+MODES = {
+    "hh": cv2.STEREO_SGBM_MODE_HH,
+    "hh4": cv2.STEREO_SGBM_MODE_HH4,
+    "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+    "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
+}
 #: Fewer tracked corners than this do not say how near the scene is: the widest search is used.
 MIN_CORNERS = 20
 
@@ -59,7 +66,8 @@ def corner_disparities(left: np.ndarray, right: np.ndarray) -> np.ndarray:
 
 
 def matcher(num_disparities: int, cfg: StereoConfig) -> cv2.StereoSGBM:
-    """StereoSGBM on grey images; P1 / P2 as OpenCV's sample (8 and 32 x block area)."""
+    """StereoSGBM on grey images (`matcher_mode`); P1 / P2 as OpenCV's sample (8 and 32 x block
+    area)."""
     block = cfg.block_size
     return cv2.StereoSGBM.create(
         minDisparity=0,
@@ -72,7 +80,7 @@ def matcher(num_disparities: int, cfg: StereoConfig) -> cv2.StereoSGBM:
         speckleWindowSize=cfg.speckle_window,
         speckleRange=cfg.speckle_range,
         preFilterCap=63,
-        mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+        mode=MODES[cfg.matcher_mode],
     )
 
 

@@ -23,7 +23,7 @@ from endopipe.stages.io.given_depth import GivenDepth
 from endopipe.stages.io.stereo_pairs import StereoPairs
 
 STEREO_DIR = "stereo"
-MATCHER = "OpenCV StereoSGBM (3-way), left-right checked"
+MATCHER = "OpenCV StereoSGBM ({mode}), left-right checked"
 GIVEN = "given by the data set, taken as it is (nearest pixel at the working size)"
 
 
@@ -137,7 +137,7 @@ class FrameStereo:
 
     @property
     def how(self) -> str:
-        return GIVEN if self.given is not None else MATCHER
+        return GIVEN if self.given is not None else MATCHER.format(mode=self.cfg.matcher_mode)
 
     @staticmethod
     def share(depth: np.ndarray, fov: np.ndarray) -> float:

@@ -255,6 +255,13 @@ def _format_names(values: Path, count: int) -> list[str] | None:
     return names
 
 
+def named_values(values: dict[str, float], source: str) -> OcamLens:
+    """A calibration given by C3VD's field names (Width, Height, cx, cy, a0, [a1,] a2, a3, a4,
+    c, d, e; any case), read as its renderer reads them."""
+    v = {k.lower(): float(x) for k, x in values.items()}
+    return _durrlab(v, v.get("a1", 0.0), source)
+
+
 def _durrlab(v: dict[str, float], a1: float, source: str) -> OcamLens:
     """C3VD's renderer's model: stretch glm::mat2(c, d, e, 1) (column-major), a0 > 0."""
     poly = [v["a0"], a1, v["a2"], v["a3"], v["a4"]]
