@@ -210,3 +210,15 @@ def test_a_working_size_lens_survives_the_calibration_file(tmp_path: Path, model
     assert np.abs(uv - np.stack([u.ravel(), v.ravel()], -1)).max() < 0.1
     # an OpenCV fisheye holds a pinhole only with k != 0 (COLMAP reads k = 0 as equidistant)
     assert model != "pinhole" or abs(fit.camera.dist[0]) > 0.1
+
+
+def test_the_run_says_which_calibration_became_the_lens(
+    case: tuple[Path, SynthConfig], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from endopipe.cli import main
+
+    path, _ = case
+    assert main(["run", str(path), "--workdir", str(tmp_path), "--until", "ingest"]) == 0
+    said = capsys.readouterr()
+    out = " ".join((said.out + said.err).split())
+    assert out.count("px RMS") == 1 and "calib_results.txt" in out

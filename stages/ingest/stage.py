@@ -157,9 +157,8 @@ class Ingest(Stage):
             ctx.log("the case has no intrinsics.json: COLMAP estimates the camera")
         if tools.active:
             ctx.log(tools.line(tool_fracs))
-        for note in source.notes:
-            if note.startswith("--"):  # what the user's --right / --baseline-mm replaced
-                ctx.log(note)
+        for note in source.notes:  # what the reader did: a lens fitted, frames cropped, --right
+            ctx.log(note)
         if stereo.active or source.stereo is not None or source.given_depth is not None:
             ctx.log(stereo.line(stereo_shares))
         if prior.active:

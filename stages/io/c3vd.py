@@ -29,7 +29,6 @@ globbed and sorted by their number, and pose line n belongs to frame number n.
 
 from __future__ import annotations
 
-import logging
 import re
 from functools import lru_cache
 from pathlib import Path
@@ -55,7 +54,6 @@ MESH_FILES = ("coverage_mesh.obj", "outputMesh.obj")
 #: The omnidirectional calibration's names, in the order they are looked for.
 CALIBRATION_FILES = ("calib_results.txt", "camera_intrinsics.txt", "config.ini")
 CALIBRATION_GLOB = "*omnidirectional*.txt"
-log = logging.getLogger("endopipe.io")
 
 
 def is_sequence(path: Path) -> bool:
@@ -190,7 +188,6 @@ def open_sequence(path: Path, intrinsics: Camera | None = None) -> C3VDSource:
             fit = calibrated_lens(calibration, *image.size)
         intrinsics = fit.camera
         said = f"{fit.said()}; from {calibration}"
-        log.info(said)
     has_gt = (path / "pose.txt").is_file() or bool(numbered(path, DEPTH)) or bool(find_mesh(path))
     source = C3VDSource(path, [f for _, f in frames], intrinsics, path if has_gt else None)
     if said:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import logging
 import re
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -22,7 +21,6 @@ IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 #: Frames whose sizes differ by at most this many pixels in width and in height (Hamlyn's copies
 #: hold 418- and 419-pixel-wide frames of one camera) are cropped, centred, to the smallest.
 CROP_TOLERANCE_PX = 2
-log = logging.getLogger("endopipe.io")
 
 
 def natural_key(path: Path) -> tuple:
@@ -145,7 +143,7 @@ def _common(sizes: list[tuple[Path, tuple[int, int]]]) -> tuple[int, int] | None
 
 def common_size(source: InputSource, files: list[Path]) -> tuple[int, int] | None:
     """The frames' common size (`check_one_size`); when frames are cropped to it, one line says
-    so (logged and kept in `source.notes`) and the source's intrinsics follow the crop."""
+    so (kept in `source.notes`, which ingest logs) and the source's intrinsics follow the crop."""
     sizes = header_sizes(files)
     size = _common(sizes)
     odd = [s for _, s in sizes if s != size]
@@ -162,8 +160,7 @@ def common_size(source: InputSource, files: list[Path]) -> tuple[int, int] | Non
         source.intrinsics = k.cropped(x0, y0, *size)
         if x0 or y0:
             line += f"; the intrinsics' principal point moved by ({-x0}, {-y0}) px"
-    log.warning(line)
-    source.notes.append(line)
+    source.notes.append(line)  # ingest says it
     return size
 
 
