@@ -4,7 +4,9 @@ Run: `.venv/bin/python scripts/bench_nerf_step.py WORKDIR/CASE [--at 1200] [--st
 [--threads 2] [--set nerf.key=value ...]` (a case run up to centerline or further). Sets up the
 trainer as the nerf stage does (`set_up_training`), jumps to step `--at` (the grid at the
 resolution the schedule has there), runs 5 steps to warm up, then times `--steps` steps. Writes
-nothing into the case. A benchmark, not a test: the machine's load moves it.
+nothing into the case. A benchmark, not a test: the machine's load moves it. `--profile N`
+then runs N more steps under torch.profiler and prints the operators by their own CPU time
+(where a step's time goes; the shares hold on a loaded machine, the milliseconds do not).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=30)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--set", action="append", default=[], dest="sets")
+    parser.add_argument("--profile", type=int, default=0, help="profile this many more steps")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     cfg = load_config(build_pipeline().stages, [str(args.case / "config.yaml")], args.sets)["nerf"]
@@ -48,6 +51,11 @@ def main() -> None:
         for _ in range(args.steps):
             trainer.step()
         ms = 1000 * (time.perf_counter() - t0) / args.steps
+        if args.profile:
+            with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU]) as prof:
+                for _ in range(args.profile):
+                    trainer.step()
+            print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=25))
     res = (
         max(trainer.model.field.density_grid.res)
         if hasattr(trainer.model.field, "density_grid")

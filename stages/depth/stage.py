@@ -168,7 +168,7 @@ class Depth(Stage):
             evaluation["by_support"] = by or None
         metrics = DepthMetrics.model_validate(evaluation)
         metrics.write(ctx.out)
-        if metrics.tool_share_left_out is not None:
+        if metrics.tool_share_left_out:
             ctx.log(
                 f"scores leave out the {metrics.tool_share_left_out:.1%} of the view on tools: "
                 "the truth there is the tool, ours the tissue inferred under it"
@@ -192,7 +192,7 @@ class Depth(Stage):
             f"pixels, {hazy_px / pixels:.1%} for a ray spread over no one surface "
             "(depth.max_spread)"
         )
-        if support is not None:
+        if support is not None and len(depths) > 1:  # one view has no others to agree
             ctx.log(
                 f"views: {support.seen_again / pixels:.1%} of the lens's pixels have a depth "
                 f"{cfg.seen_again_views} other views agree with, {support.one_view / pixels:.1%} "

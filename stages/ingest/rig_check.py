@@ -152,6 +152,7 @@ def check_rig(
     min_spread_px: float = 0.1,
     min_row_px: float = 0.25,
     camera: Camera | None = None,
+    px: float = 1.0,
 ) -> RigCheck:
     """Check the pairing and the rows of a rig on `frames` of the kept frames' `sources`
     (source indices); `left(s)` / `right(s)` give the two eyes' RGB images at the working size
@@ -159,7 +160,8 @@ def check_rig(
     at least `min_gain` times smaller and the named one's exceeds `min_spread_px`; the row shift
     when the chosen pairing's median vertical disparity exceeds `min_row_px`; with the
     rectified `camera` (working size), the right eye's rotation when a shift leaves the matches
-    more than MEND_PX off their rows."""
+    more than MEND_PX off their rows. The thresholds are in pixels of the working size: `px`
+    of the images given make one (a pair alone is checked at its own, larger size)."""
     picked = [sources[int(round(k))] for k in np.linspace(0, len(sources) - 1, frames)]
     picked = sorted(set(picked))
     fewest = min(MIN_FRAMES, len(picked))  # a pair alone is checked for its rows only
@@ -190,6 +192,7 @@ def check_rig(
     spread = {off: float(np.std(rows)) for off, rows in by_offset.items()}
     best = min(spread, key=spread.get)  # type: ignore[arg-type]
     named = spread[0]
+    mend_px, min_spread_px, min_row_px = MEND_PX * px, min_spread_px * px, min_row_px * px
     offset = best if named > min_spread_px and named >= min_gain * spread[best] else 0
     rows = by_offset[offset]
     row = float(np.median(rows))
@@ -199,7 +202,7 @@ def check_rig(
     as_came = float(np.median(np.abs(a[:, 1] - b[:, 1])))
     after_shift = float(np.median(np.abs(a[:, 1] - b[:, 1] - shift)))
     turn, refused = None, None
-    if camera is not None and as_came > MEND_PX:
+    if camera is not None and as_came > mend_px:
         # a rotation explains a shift too (about the rows' axis), and what a shift cannot: a
         # toe-in shows only as rows parting towards the corners, and biases every disparity
         turn = right_rotation(a, b, camera)
@@ -228,7 +231,7 @@ def check_rig(
             f"eye's rotation re-estimated from {len(a)} matches ({rotation_deg(turn):.2f} deg "
             f"from the calibration's), the right image turned by it: {mended:.2f} px"
         )
-    elif camera is not None and after_shift > MEND_PX:
+    elif camera is not None and after_shift > mend_px:
         refused = (
             f"matched features lie {after_shift:.2f} px off their rows (median) and no rotation "
             "of the right eye brings them onto them: the rig's depth is left out (check the "

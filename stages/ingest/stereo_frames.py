@@ -78,6 +78,7 @@ class FrameStereo:
             lambda s: self._right(s, (w, h)),
             self.cfg.max_offset,
             camera=self.camera.scaled(w, h) if self.camera is not None else None,
+            px=w / self.camera.width if self.camera is not None else 1.0,
         )
         if self.camera is not None and w != self.camera.width:
             rig = rig.at_width(self.camera.width, w)
