@@ -21,6 +21,7 @@ if TYPE_CHECKING:
 RENDERERS = {
     "baked": "the surface baked from the field once, then ray cast",
     "field": "the field itself, ray marched",
+    "stereo": "no field: the rig's depth as ingest matched it (a stereo pair alone)",
 }
 
 
@@ -78,6 +79,28 @@ def renderer(s: DepthSummary) -> str:
     return f"{s.renderer}: {RENDERERS[s.renderer]}" if s.renderer in RENDERERS else s.renderer
 
 
+#: Our metric depth and a metric truth a constant apart by more than this: said, with why.
+SCALE_APART = 0.10
+
+
+def scale_line(dm: DepthMetrics | None, metric: bool) -> str | None:
+    """When our depth is metric and one scale for the sequence still moves it by more than
+    SCALE_APART to the truth: the ratio, and what a constant ratio means."""
+    if not metric or dm is None or dm.unscaled is None or dm.sequence_scaled is None:
+        return None
+    scale = getattr(dm.sequence_scaled, "scale", None)
+    if scale is None or abs(scale - 1.0) <= SCALE_APART:
+        return None
+    return (
+        f"Our depth is metric, yet the truth is {scale:.3f} times it (one scale for the "
+        "sequence). A constant ratio is a difference of calibration or units, not of shape: "
+        "the truth made with another focal length or baseline than ours (a release's stereo "
+        "depth from its own calibration), or stated in other units. The scaled scores measure "
+        "the shape; the unscaled ones this ratio. Check the truth's units and calibration "
+        "before reading them as our error."
+    )
+
+
 def section_depth(data: CaseData, info: ReportInfo) -> str | None:
     if data.depth is None:
         if "depth" in data.view_errors:
@@ -107,6 +130,7 @@ def section_depth(data: CaseData, info: ReportInfo) -> str | None:
         ssim=ssim,
         per_frame=per_frame,
         no_metrics=no_metrics,
+        scale_said=scale_line(dm, data.poses is not None and data.poses.metric),
         s=s,
         renderer=renderer(s) if s is not None else "",
         unknown=unknown_depth(s) if s is not None else None,
