@@ -50,22 +50,18 @@ from endopipe.stages.ingest.config import StereoConfig
 from endopipe.stages.ingest.rig_check import RigCheck, check_rig, mended_right
 from endopipe.stages.ingest.selection import resize, working_size
 from endopipe.stages.ingest.stereo import (
+    MODES,
     SUBPIXEL,
     consistent,
     disparity_range,
     grey,
     match_depth,
+    matcher,
     padded_match,
 )
 from endopipe.stages.io.sources import open_input
 
 WORKING_MAX = 320  # ingest.max_size's default
-MODES = {
-    "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
-    "hh": cv2.STEREO_SGBM_MODE_HH,
-    "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY,
-    "hh4": cv2.STEREO_SGBM_MODE_HH4,
-}
 PREFILTERS = {
     "xsobel": cv2.STEREO_BM_PREFILTER_XSOBEL,
     "norm": cv2.STEREO_BM_PREFILTER_NORMALIZED_RESPONSE,
@@ -91,21 +87,9 @@ class Pair:
 # ------------------------------------------------------------------------------ the matchers
 
 
-def sgbm(n: int, block: int, mode: int, cfg: StereoConfig) -> cv2.StereoSGBM:
+def sgbm(n: int, block: int, mode: str, cfg: StereoConfig) -> cv2.StereoSGBM:
     """StereoSGBM set as stereo.matcher sets it, with another mode and block."""
-    return cv2.StereoSGBM.create(
-        minDisparity=0,
-        numDisparities=n,
-        blockSize=block,
-        P1=8 * block * block,
-        P2=32 * block * block,
-        disp12MaxDiff=-1,
-        uniquenessRatio=cfg.uniqueness,
-        speckleWindowSize=cfg.speckle_window,
-        speckleRange=cfg.speckle_range,
-        preFilterCap=63,
-        mode=mode,
-    )
+    return matcher(n, cfg.model_copy(update={"block_size": block, "matcher_mode": mode}))
 
 
 def stereo_bm(n: int, block: int, prefilter: int, cfg: StereoConfig) -> cv2.StereoBM:
@@ -164,7 +148,7 @@ def sgbm_variant(mode: str, block: int, median: tuple[int, ...] = ()) -> Matcher
     ) -> dict[str, np.ndarray]:
         lg, rg = grey(left), grey(right)
         n = disparity_range(lg, rg, fx, baseline_mm, cfg)
-        d = checked_disparity(lg, rg, sgbm(n, block, MODES[mode], cfg), n, cfg)
+        d = checked_disparity(lg, rg, sgbm(n, block, mode, cfg), n, cfg)
         out = {"": to_depth(d, fx, baseline_mm)}
         for k in median:
             out[f" +median{k}"] = to_depth(median_refined(d, k), fx, baseline_mm)
@@ -195,7 +179,7 @@ def wls_variant(block: int, lam: float, sigma: float, confidences: list[float]) 
     ) -> dict[str, np.ndarray]:
         lg, rg = grey(left), grey(right)
         n = disparity_range(lg, rg, fx, baseline_mm, cfg)
-        left_m = sgbm(n, block, MODES["3way"], cfg)
+        left_m = sgbm(n, block, "3way", cfg)
         right_m = cv2.ximgproc.createRightMatcher(left_m)
         wls = cv2.ximgproc.createDisparityWLSFilter(left_m)
         wls.setLambda(lam)
