@@ -63,10 +63,10 @@ class Centerline(Stage):
         centres = poses.centres()
         if len(centres) == 0:
             raise StageFailed("centerline: no registered cameras in 02_poses")
-        ingest = ctx.input(IngestView)
-        if poses.still or ingest.one_pair:
+        if poses.still or poses.one_pair:
+            ingest = ctx.input(IngestView)
             typical = stereo_typical_depth(ingest, poses)
-            why = "one stereo pair is one view" if ingest.one_pair else "the camera stands still"
+            why = "one stereo pair is one view" if poses.one_pair else "the camera stands still"
             return no_parallax(ctx, centres, typical, ingest.stereo_measured_by, why)
         view_dirs = np.array([poses.c2w[i][:3, 2] for i in poses.registered]).reshape(-1, 3)
         points = poses.points()
@@ -75,7 +75,7 @@ class Centerline(Stage):
             "tube": fit_tube(centres, view_dirs, points, cfg, metric=poses.metric),
             "cavity": fit_cavity(centres, view_dirs, points, cfg, metric=poses.metric),
         }
-        frames, origins, seen = observation_rays(ingest, poses, points)
+        frames, origins, seen = observation_rays(ctx.input(IngestView), poses, points)
         candidates = {k: f.prior(cfg.far_radii) for k, f in fits.items()}
         choice = choose_prior(
             candidates,

@@ -48,7 +48,7 @@ from endopipe.stages.poses.verdict import (
     judge,
     ranges,
 )
-from endopipe.stages.poses.view import CamerasFile, PosesView
+from endopipe.stages.poses.view import ONE_PAIR_SOURCE, CamerasFile, PosesView
 
 __all__ = ["Poses", "PosesConfig", "PosesSummary"]
 
@@ -144,7 +144,7 @@ class Poses(Stage):
         verdict = assess(est, cfg, ingest)
         verdict.motion = motion
         gate(verdict, cfg)
-        source = "one stereo pair" if ingest.one_pair else cfg.source
+        source = ONE_PAIR_SOURCE if ingest.one_pair else cfg.source
         write_outputs(ctx, ingest, est, source, metric)
         verdict.write(ctx.out / "verdict.json")
         k = est.camera

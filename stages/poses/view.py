@@ -29,6 +29,10 @@ class FramePose(BaseModel):
     c2w: list[list[float]] | None = None
 
 
+#: cameras.json's `source` for a stereo pair alone (poses/sources.py: from_one_pair).
+ONE_PAIR_SOURCE = "one stereo pair"
+
+
 class CamerasFile(BaseModel):
     """One shared camera and a camera-to-world pose per frame (OpenCV convention).
 
@@ -171,6 +175,11 @@ class PosesView:
         if Manifest.load(self.folder) is None:
             return True
         return self.summary.metric_from in (None, "ground truth")
+
+    @property
+    def one_pair(self) -> bool:
+        """A stereo pair alone: one frame posed as the world, no path (`source` says so)."""
+        return self.file.source == ONE_PAIR_SOURCE
 
     @property
     def still(self) -> bool:
