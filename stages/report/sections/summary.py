@@ -36,6 +36,9 @@ def section_summary(data: CaseData, info: ReportInfo) -> str:
     mm = data.mesh_metrics
     verdict = data.pose_verdict() if poses is not None else None
     gt = info.gt_kind
+    metric = poses.metric if poses is not None else (pos.metric if pos else None)
+    # metric depth against an exact truth: its own error, no scale fitted, is the one to read
+    unscaled = dm.unscaled if dm is not None and metric and gt == "exact" else None
     gt_dir = data.gt_dir()
     dropped = None
     if ing is not None and ing.dropped:
@@ -56,7 +59,8 @@ def section_summary(data: CaseData, info: ReportInfo) -> str:
         n_frames=n_frames,
         registered=registered,
         total=total,
-        metric=poses.metric if poses is not None else (pos.metric if pos else None),
+        metric=metric,
+        unscaled=unscaled,
         gt=gt,
         gt_badge=GT_BADGES.get(gt, (gt, "muted")),
         gt_hint=GT_HINTS.get(gt, ""),
