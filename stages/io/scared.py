@@ -31,6 +31,7 @@ from __future__ import annotations
 import json
 import re
 from collections.abc import Iterator
+from functools import cached_property
 from pathlib import Path
 
 import cv2
@@ -153,16 +154,19 @@ class ScaredKeyframe(InputSource):
         super().__init__(path, rig.camera(), gt_dir)
         self.rig = rig
 
-    def _rectified(self) -> tuple[np.ndarray, np.ndarray]:
+    @cached_property
+    def rectified(self) -> tuple[np.ndarray, np.ndarray]:
+        """Both eyes read and rectified once (ingest asks for them several times: selection,
+        the rig check at their own size, the matcher); one InputError line when unreadable."""
         left, right = keyframe_eyes(self.path)
         (lx, ly), (rx, ry) = self.rig.maps
         return cv2.remap(left, lx, ly, cv2.INTER_LINEAR), cv2.remap(right, rx, ry, cv2.INTER_LINEAR)
 
     def frames(self) -> Iterator[Frame]:
-        yield Frame(0, 0.0, self._rectified()[0])
+        yield Frame(0, 0.0, self.rectified[0].copy())
 
     def right_view(self, source_index: int) -> np.ndarray | None:
-        return self._rectified()[1] if source_index == 0 else None
+        return self.rectified[1].copy() if source_index == 0 else None
 
     def frame_count(self) -> int | None:
         return 1
@@ -214,8 +218,8 @@ def open_sequence(path: Path, intrinsics: Camera | None = None) -> InputSource:
 def open_pair_or_video(path: Path, rig: Rig, stacked: bool, gt_dir: Path | None) -> InputSource:
     """The keyframe's two images alone, or its video (with its poses when they are there)."""
     if is_keyframe(path):
-        keyframe_eyes(path)  # two readable images of one size, or one line now
         pair = ScaredKeyframe(path, rig, gt_dir)
+        pair.rectified  # noqa: B018  (two readable images of one size, or one line now)
         pair.stereo = StereoPairs(
             right=pair.right_view,
             baseline_mm=rig.baseline_mm(),

@@ -88,7 +88,7 @@ def scale_line(dm: DepthMetrics | None, metric: bool) -> str | None:
     SCALE_APART to the truth: the ratio, and what a constant ratio means."""
     if not metric or dm is None or dm.unscaled is None or dm.sequence_scaled is None:
         return None
-    scale = getattr(dm.sequence_scaled, "scale", None)
+    scale = dm.sequence_scaled.scale
     if scale is None or abs(scale - 1.0) <= SCALE_APART:
         return None
     return (
