@@ -79,6 +79,7 @@ def test_it_runs_to_the_end_with_the_rigs_depth_and_no_path_nor_field(truth_run:
     poses = PosesView(truth_run / "02_poses")
     assert poses.registered == [0] and poses.metric and poses.one_pair
     assert np.allclose(poses.c2w[0], np.eye(4))
+    assert poses.summary.verdict == "not assessed"  # one pose: nothing to call right
     nerf = NerfView(truth_run / "04_nerf")
     assert not nerf.trained and not nerf.model_path.exists()
     depth = DepthView(truth_run / "05_depth")

@@ -204,7 +204,7 @@ def from_one_pair(ingest: IngestView) -> Estimate:
         f"; {len(ingest.frames) - 1} other frame(s) not posed" if len(ingest.frames) > 1 else ""
     )
     verdict = PoseVerdict(
-        status="ok",
+        status="not assessed",  # one pose by definition: no path to be right or wrong
         reasons=[said],
         mapper="one stereo pair",
         frames=[FrameVerdict(index=first, status="ok")],
