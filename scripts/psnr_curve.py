@@ -2,14 +2,17 @@
 would take the field.
 
 Run: `.venv/bin/python scripts/psnr_curve.py WORKDIR/CASE [--every 250] [--frames 4]
-[--threads 1] [--set nerf.key=value ...] [--csv OUT.csv] [--renders DIR]` (a case run up to
-centerline or further). Sets up the trainer as the nerf stage does (`set_up_training`, the
-case's own config.yaml and the `--set`s), trains, and every `--every` steps renders `--frames`
-held-out frames and as many training frames (spread over the sequence) in full, scoring each on the
-pixels the stage's PSNR counts (the ingest masks and the lens). Prints one row per point:
-step, training seconds so far, training PSNR, held-out PSNR; the neighbour average of the same
-held-out frames is printed once; `--renders` writes each scored frame beside its last render.
-Writes nothing into the case. A benchmark: run it alone.
+[--threads 1] [--set nerf.key=value ...] [--csv OUT.csv] [--renders DIR] [--depth N]` (a case
+run up to centerline or further). Sets up the trainer as the nerf stage does
+(`set_up_training`, the case's own config.yaml and the `--set`s), trains, and every `--every`
+steps renders `--frames` held-out frames and as many training frames (spread over the
+sequence) in full, scoring each on the pixels the stage's PSNR counts (the ingest masks and
+the lens). Prints one row per point: step, training seconds so far, training PSNR, held-out
+PSNR; the neighbour average of the same held-out frames is printed once; `--renders` writes
+each scored frame beside its last render; `--depth N` scores the field's depth at the end on
+N frames spread over the sequence against the case's ground truth (the depth stage's
+protocol, median-scaled per frame; the field alone, before the depth stage). Writes nothing
+into the case. A benchmark: run it alone.
 """
 
 from __future__ import annotations
@@ -28,8 +31,10 @@ from endopipe.cli import build_pipeline
 from endopipe.pipeline.config import load_config, read_yaml
 from endopipe.stages.camera import lens_valid_mask
 from endopipe.stages.centerline.view import CenterlineView
+from endopipe.stages.depth.evaluate import ground_truth_depths, inside_view, scored_pixels
 from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.metrics.baselines import neighbour_average, neighbour_frames
+from endopipe.stages.metrics.depth import depth_sequence_metrics
 from endopipe.stages.nerf import losses
 from endopipe.stages.nerf.render import render_image
 from endopipe.stages.nerf.stage import set_up_training
@@ -56,6 +61,25 @@ def nerf_config(case: Path, sets: list[str]):
         Path(fh.name).unlink()
 
 
+def field_depth_line(run, ingest: IngestView, ids: list[int]) -> str:
+    """The field's depth on frames `ids` against the case's ground truth, median-scaled per
+    frame as the depth stage scores it, on the same pixels (inside the view, off tools)."""
+    truth = ground_truth_depths(ingest.ground_truth(), ingest, ids)
+    if not truth:
+        return "depth: the case has no ground-truth depth"
+    model = run.trainer.model.eval()
+    ours = {}
+    for i in sorted(truth):
+        p = run.pos[i]
+        with model.at_frame(p):
+            ours[i] = render_image(model, run.prior, run.camera, run.c2w[p], frame=p)["depth"]
+    keep = sorted(truth)
+    masks, _ = scored_pixels(ingest, keep, inside_view(ingest))
+    m = depth_sequence_metrics([ours[i] for i in keep], [truth[i] for i in keep], masks)
+    block = m["median_scaled"]
+    return f"field depth, {len(keep)} frames: AbsRel {block['abs_rel']:.4f} median-scaled"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("case", type=Path)
@@ -65,6 +89,7 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], dest="sets")
     ap.add_argument("--csv", type=Path, default=None)
     ap.add_argument("--renders", type=Path, default=None, help="frame | render PNGs, at the end")
+    ap.add_argument("--depth", type=int, default=0, help="frames whose depth is scored at the end")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     cfg = nerf_config(args.case, args.sets)
@@ -129,6 +154,8 @@ def main() -> None:
                 f" dB  held-out {row['heldout_psnr']:.2f} dB",
                 flush=True,
             )
+        if args.depth:
+            print(field_depth_line(run, ingest, spread(run.ids, args.depth)), flush=True)
         if args.renders:
             import cv2
 

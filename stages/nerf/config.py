@@ -32,10 +32,13 @@ class ShadingConfig(ConfigSection):
     )
     ambient: float = Field(0.02, ge=0, description="Initial ambient term (learned).")
     learn_gain: bool = Field(True, description="Learn the light gain (else keep the initial one).")
-    exposure: bool = Field(
-        False,
-        description="Learn a per-frame exposure (log gain, zero-mean over the training "
-        "frames); held-out frames have none and are rendered at the mean (0).",
+    exposure: bool | Literal["auto"] = Field(
+        "auto",
+        description="Learn a per-frame exposure (log gains a colour channel, zero-mean over "
+        "the training frames; a held-out frame takes its trained neighbours'). auto: on for a "
+        "moving camera with no lumen prior (the scope's exposure follows what it looks at: "
+        "the sinus recording's mean brightness moves 2x over its first window), off "
+        "otherwise.",
     )
     falloff: Literal["none", "learned"] = Field(
         "none",

@@ -130,7 +130,7 @@ class NerfModel(nn.Module):
                 for deg in (30, 60):
                     c = torch.tensor([math.cos(math.radians(deg))], device=self.falloff.device)
                     out[f"falloff_{deg}deg"] = float(self.radial_falloff(c)[0])
-            if sc.exposure:
+            if sc.exposure is True:
                 keep = self.exposure_trained > 0
                 out["exposure_std"] = float(
                     self._exposure_centred()[keep].mean(-1).std(unbiased=False)
@@ -382,6 +382,6 @@ class NerfModel(nn.Module):
             if cfg.falloff == "learned":
                 light = light * self.radial_falloff(1.0 / dnorm)  # cos theta = 1 / |d|
             lin = albedo * light[:, None]
-            if cfg.exposure and frame is not None:
+            if cfg.exposure is True and frame is not None:
                 lin = lin * self._exposure_centred()[frame].exp()
         return lin.clamp_min(1e-4) ** (1.0 / self.gamma())
