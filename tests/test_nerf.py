@@ -17,6 +17,7 @@ import torch
 from endopipe.stages.camera import Camera, pixel_rays
 from endopipe.stages.centerline.prior import save_prior
 from endopipe.stages.metrics.depth import depth_errors, depth_frame_metrics, depth_sequence_metrics
+from endopipe.stages.nerf.auto_settings import regularise_far_view
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.data import holdout_split
 from endopipe.stages.nerf.encodings import HashGrid, VMGrid
@@ -24,7 +25,7 @@ from endopipe.stages.nerf.field import make_field
 from endopipe.stages.nerf.render import density_grid, load_model, render_image, save_model
 from endopipe.stages.nerf.sampling import composite, sample_pdf, spaced
 from endopipe.stages.nerf.scene import SceneBox
-from endopipe.stages.nerf.stage import fit_box, regularise_far_view
+from endopipe.stages.nerf.stage import fit_box
 from endopipe.stages.nerf.train import Trainer
 from tests.tube_scene import (  # noqa: F401 - one_torch_thread is a fixture
     END_Z,

@@ -24,10 +24,10 @@ from endopipe.stages.centerline.choose import (
 from endopipe.stages.centerline.config import CenterlineConfig
 from endopipe.stages.centerline.prior import FreePrior, LumenPrior, load_prior, save_prior
 from endopipe.stages.centerline.tube import fit_tube
+from endopipe.stages.nerf.auto_settings import free_scene_settings, weigh_prior
 from endopipe.stages.nerf.bounds import PriorBounds
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.scene import SceneBox
-from endopipe.stages.nerf.stage import free_scene_settings, weigh_prior
 
 CFG = CenterlineConfig()
 

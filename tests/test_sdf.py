@@ -79,8 +79,8 @@ def test_signed_distance_training_beats_the_density_field_on_the_tube(tmp_path):
 
 def test_auto_geometry_is_a_signed_distance_over_a_cavity_only():
     from endopipe.stages.centerline.prior import EllipsoidPrior
+    from endopipe.stages.nerf.auto_settings import choose_geometry
     from endopipe.stages.nerf.config import NerfConfig
-    from endopipe.stages.nerf.stage import choose_geometry
     from tests.tube_scene import tube_prior
 
     cfg = NerfConfig()
