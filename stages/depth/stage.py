@@ -48,11 +48,12 @@ class Depth(Stage):
 
     name = "depth"
     needs = ("ingest", "poses", "centerline", "nerf")
-    # 16: a stereo pair alone: the rig's depth; 15: depth held to the stereo or the SfM
+    # 17: no iso-surface in a free scene, its own spread limit; 16: a stereo pair alone: the
+    # rig's depth; 15: depth held to the stereo or the SfM
     # points; 14: a volume-rendered ray's depth is its weights' median where no measured depth
     # trained the field; 13: tools left out of the scores, depth from shading scored; 12: says
     # when the truth also supervised; 11: the depth prior scored; 10: stereo
-    version = 16
+    version = 17
     Config = DepthConfig
     Summary = DepthSummary
     View = DepthView
@@ -190,7 +191,7 @@ class Depth(Stage):
             f"{len(depths)} depth maps, {ms:.0f} ms per frame ({used}; "
             f"baking {bake_s:.1f} s); no depth on {unknown_px / pixels:.1%} of the lens's "
             f"pixels, {hazy_px / pixels:.1%} for a ray spread over no one surface "
-            "(depth.max_spread)"
+            "(depth.max_spread; without a lumen prior depth.free_max_spread)"
         )
         if support is not None and len(depths) > 1:  # one view has no others to agree
             ctx.log(

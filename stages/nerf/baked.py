@@ -69,9 +69,12 @@ class BakedSurface:
             calibrated = surface_density_level(model, prior, intrinsics, c2ws)
         level = iso_level(calibrated, density_level, float(prior.typical_radius))
 
-        # The surface is baked up to `reach_radii` lumen radii from each camera: further out the
-        # grid grows with the cube of the reach, and rays that miss are volume-rendered exactly.
+        # The surface is baked up to `reach_radii` lumen radii from each camera (0: none, the
+        # far bake answers every ray): further out the grid grows with the cube of the reach.
         radius = float(prior.typical_radius)
+        far_bake = FarBake.bake(model, level, far) if far is not None else None
+        if reach_radii <= 0:
+            return cls(np.zeros((0, 3)), np.zeros((0, 3), np.int64), prior, model, far_bake)
         depth_trunc = radius * reach_radii
         mesh, _ = density_mesh(
             field_density_fn(model),
@@ -86,7 +89,6 @@ class BakedSurface:
         )
         if min_component_radii > 0:
             mesh, _ = drop_small_components(mesh, 0.0, min_component_radii * radius)
-        far_bake = FarBake.bake(model, level, far) if far is not None else None
         return cls(np.asarray(mesh.vertices), np.asarray(mesh.faces), prior, model, far_bake)
 
     def render_depth(
