@@ -4,6 +4,9 @@ a ray, and the outer rays' angles come close to the true lens's."""
 from __future__ import annotations
 
 import json
+import os
+import re
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -20,9 +23,10 @@ def ray_angle_deg(camera: Camera, u: float, v: float) -> float:
 
 
 @pytest.fixture(scope="module")
-def fisheye_poses(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Camera]:
+def fisheye_poses(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Camera, str]:
     """A small colon through the synthetic 140-degree fisheye, the lens withheld: posed by the
-    default SfM (SIMPLE_RADIAL self-calibrated)."""
+    default SfM (SIMPLE_RADIAL self-calibrated); and what reached the process's stderr (COLMAP
+    writes there itself, past Python)."""
     from typer.testing import CliRunner
 
     from endopipe.cli import app
@@ -35,15 +39,30 @@ def fisheye_poses(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Camer
     source.mkdir()
     for part in ("video.mp4", "gt"):
         (source / part).symlink_to((src / part).resolve())
-    result = CliRunner().invoke(
-        app, ["run", str(source), "--workdir", str(root / "w"), "--until", "poses"]
-    )
+    with tempfile.TemporaryFile() as err:
+        saved = os.dup(2)
+        os.dup2(err.fileno(), 2)
+        try:
+            result = CliRunner().invoke(
+                app, ["run", str(source), "--workdir", str(root / "w"), "--until", "poses"]
+            )
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        err.seek(0)
+        stderr = err.read().decode(errors="replace")
     assert result.exit_code == 0, result.output
-    return root / "w" / "in" / "02_poses", Camera.load(src / "intrinsics.json")
+    return root / "w" / "in" / "02_poses", Camera.load(src / "intrinsics.json"), stderr
+
+
+def test_the_lens_refit_writes_no_colmap_log_lines(fisheye_poses) -> None:
+    stderr = fisheye_poses[2]
+    assert not re.search(r"^[IWE]\d{8} ", stderr, re.M), stderr[:500]
+    assert "Bundle adjustment report" not in stderr
 
 
 def test_a_folding_lens_is_refitted_as_a_fisheye_near_the_true_one(fisheye_poses) -> None:
-    folder, truth = fisheye_poses
+    folder, truth, _ = fisheye_poses
     poses = PosesView(folder)
     refit = json.loads((folder / "manifest.json").read_text())["summary"]["lens_refit"]
     assert (refit["from_model"], refit["to_model"]) == ("SIMPLE_RADIAL", "OPENCV_FISHEYE")

@@ -272,11 +272,20 @@ def _as_opencv_fisheye(camera: pycolmap.Camera) -> tuple[pycolmap.Camera, float]
 def _adjust(
     rec: pycolmap.Reconstruction, refine_intrinsics: bool, refine_principal_point: bool
 ) -> None:
-    """One global bundle adjustment of `rec` (its poses and points; the lens when asked)."""
+    """One global bundle adjustment of `rec` (its poses and points; the lens when asked), as
+    `pycolmap.bundle_adjustment` does it (every registered image, the gauge fixed by two
+    cameras) but through the adjuster itself: that wrapper turns COLMAP's logging back on and
+    writes its report to stderr beside our lines."""
     import pycolmap
 
     options = pycolmap.BundleAdjustmentOptions()
+    options.print_summary = False
     options.refine_focal_length = refine_intrinsics
     options.refine_extra_params = refine_intrinsics
     options.refine_principal_point = refine_intrinsics and refine_principal_point
-    pycolmap.bundle_adjustment(rec, options)
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in rec.reg_image_ids():
+        config.add_image(image_id)
+    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
+    rec.update_point_3d_errors()

@@ -27,7 +27,7 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext[PosesCon
     """SfM on the ingest's frames: each mapper's model judged on its own, the soundest kept
     (verdict.py), a lens that folds back inside the frame re-fitted as a fisheye."""
     # pycolmap is heavy: only when used
-    from endopipe.stages.poses.colmap_sfm import frame_poses, run_sfm
+    from endopipe.stages.poses.colmap_sfm import colmap_logging, frame_poses, run_sfm
 
     known = ingest.intrinsics
     scratch = ctx.out / "colmap"
@@ -67,7 +67,8 @@ def from_colmap(ingest: IngestView, cfg: PosesConfig, ctx: StageContext[PosesCon
     fixed = known is not None and not cfg.refine_known_intrinsics
     refit_info: dict[str, LensRefit] = {}
     if known is None and cfg.unfold_lens and lens_folds(camera, ingest):
-        refit = unfold(rec, cfg.refine_principal_point, ctx.log)
+        with colmap_logging(cfg.colmap_log):  # its bundle adjustments: no glog lines
+            refit = unfold(rec, cfg.refine_principal_point, ctx.log)
         if refit is not None:
             refit_info["lens_refit"] = refit.record
             rec, camera, model = refit.reconstruction, refit.camera, refit.colmap_model
