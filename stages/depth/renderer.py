@@ -91,21 +91,16 @@ def stereo_sight(ingest: IngestView, poses: PosesView) -> FieldSight:
     return FieldSight(render, k, dict(poses.c2w), None, 0.0)
 
 
-def free_scene(prior) -> bool:
-    """No lumen prior (its kind "none"): the depth stage's free-scene settings apply."""
-    return getattr(prior, "kind", "") == "none"
-
-
 def spread_limit(cfg: DepthConfig, prior) -> float | None:
     """The baked read-out's spread limit: depth.max_spread, or depth.free_max_spread in a free
     scene (its far bake's ramps are as wide as its grid's cells; a volume-rendered ray keeps
     depth.max_spread)."""
-    return cfg.free_max_spread if free_scene(prior) else cfg.max_spread
+    return cfg.free_max_spread if prior.kind == "none" else cfg.max_spread
 
 
 def bakes_near(cfg: DepthConfig, prior) -> bool:
     """depth.bake_near resolved: auto is on with a lumen prior, off in a free scene."""
-    return cfg.bake_near == "on" or (cfg.bake_near == "auto" and not free_scene(prior))
+    return cfg.bake_near == "on" or (cfg.bake_near == "auto" and prior.kind != "none")
 
 
 def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, nerf: NerfView):
@@ -115,7 +110,6 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, ner
     from endopipe.stages.nerf.render import render_image, surface_found
 
     read_out = field_depth(cfg, nerf)
-    max_spread = spread_limit(cfg, prior)
 
     def colour_of(k, c2w, i) -> np.ndarray:
         kept = nerf.heldout_rgb(i)
@@ -147,7 +141,7 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, ner
             return out
 
         return render_field
-    from endopipe.stages.nerf.baked import BakedSurface, FarSettings
+    from endopipe.stages.nerf.baked import NEAR_REACH_RADII, BakedSurface, FarSettings
 
     far = None
     if cfg.far == "baked":
@@ -163,10 +157,12 @@ def make_renderer(cfg: DepthConfig, model, prior, c2ws: list[np.ndarray], k, ner
         k,
         cfg.bake_voxels_per_radius,
         cfg.bake_density_level,
-        reach_radii=2.5 if bakes_near(cfg, prior) else 0.0,
+        reach_radii=NEAR_REACH_RADII if bakes_near(cfg, prior) else 0.0,
         min_component_radii=cfg.bake_min_component,
         far=far,
     )
+
+    max_spread = spread_limit(cfg, prior)
 
     def render(k, c2w, i, colour):
         out = baked.render_depth(

@@ -25,6 +25,10 @@ import numpy as np
 from endopipe.stages.camera import Camera, image_directions, lens_valid_mask
 from endopipe.stages.surface.marching import iso_level
 
+#: How far from each camera the iso-surface is baked, in lumen radii (further out the grid
+#: grows with the cube of the reach; the far bake answers the rays beyond).
+NEAR_REACH_RADII = 2.5
+
 
 @dataclass
 class BakedSurface:
@@ -51,7 +55,7 @@ class BakedSurface:
         voxels_per_radius: int = 24,
         density_level: float | None = None,
         band: float = 0.6,
-        reach_radii: float = 2.5,
+        reach_radii: float = NEAR_REACH_RADII,
         min_component_radii: float = 0.0,
         far: FarSettings | None = None,
     ) -> BakedSurface:
