@@ -70,7 +70,8 @@ def main() -> None:
         right = right_u8
         right = mended_right(right, rig or RigCheck(), k).astype(np.float32) / 255.0
         with model.at_frame(position[i]):
-            out = render_image(model, prior, k, c2w[i] @ shift, frame=position[i])
+            # the right eye moved, the scope's light did not: it stays at the left eye
+            out = render_image(model, prior, k, c2w[i] @ shift, frame=position[i], light_c2w=c2w[i])
         rgb = out["rgb"]
         # not the right eye's black rectification band, nor its highlights (view-dependent:
         # the left frames' are masked out of training as well)

@@ -203,3 +203,34 @@ def test_the_normal_term_dims_a_tilted_wall_by_its_cosine_and_off_ignores_the_ti
         ratio = (dimmed / lit) ** gamma
         expected = math.cos(tilt) if normal_term else 1.0
         assert torch.allclose(ratio, torch.full_like(ratio, expected), rtol=1e-3)
+
+
+def test_a_view_lit_from_another_camera_is_shaded_from_that_light():
+    """A rectified rig's right eye is lit by the scope's light at the left eye: shaded from the
+    light's pose, the wall gets gain cos / r^2 with r and the angle to that light (computed here
+    from the geometry), and a light at the rays' own camera shades as the default does."""
+    cfg = photometric_config(falloff="learned")
+    model, d, surface, albedo, frame, _ = flat_wall(cfg)
+    rot = torch.as_tensor(cv2.Rodrigues(np.array([0.4, -0.7, 1.1]))[0], dtype=torch.float32)
+    origins = torch.zeros_like(d)
+    with torch.no_grad():
+        model.falloff.copy_(torch.tensor([-0.8, 0.3, -0.1]))
+        own = torch.eye(4)
+        own[:3, :3] = rot
+        at_camera = model.shade(surface, albedo, d, d.norm(dim=-1), frame, 1.0, (own, origins))
+        assert torch.allclose(at_camera, shade(model, d, surface, albedo, frame), rtol=1e-5)
+
+        model.falloff.zero_()
+        model.ambient_raw.fill_(-30.0)  # no ambient: gain cos / r^2 alone
+        left = own.clone()
+        left[:3, 3] = rot @ torch.tensor([-0.3, 0.0, 0.0])  # the light 0.3 to the camera's left
+        moved = model.shade(surface, albedo, d, d.norm(dim=-1), frame, 1.0, (left, origins))
+        unmoved = shade(model, d, surface, albedo, frame)
+    points = d * surface["depth"][:, None]
+    to_light = left[:3, 3] - points
+    r = to_light.norm(dim=-1)
+    cos = (surface["normal"] * to_light).sum(-1) / r
+    expected = albedo * (model.log_gain.exp() * cos / r.square())[:, None]
+    expected = expected ** (1.0 / cfg.shading.gamma)
+    assert torch.allclose(moved, expected, rtol=1e-4)
+    assert (moved - unmoved).abs().mean() > 0.01  # the moved light is not the camera's

@@ -12,7 +12,9 @@ needed). Frames are display-encoded: colour^(1/gamma), gamma fixed or learned.
 The scope's photometry (each piece optional, `ShadingConfig`): a per-frame exposure (log gain,
 zero-mean over the training frames, so held-out frames, which have none, get the mean) and a
 radial falloff F(theta) = exp(sum_k a_k (1 - cos theta)^k) of the ray's angle theta to the
-optical axis. With the light at the camera centre and symmetric about the axis, the light's
+optical axis. A view that does not carry the light (a rectified rig's right eye, lit from the
+left) is shaded from the light's own pose instead (`render_rays(light=...)`). With the light at
+the camera centre and symmetric about the axis, the light's
 emission angle is theta too, so its angular profile and the lens's vignetting cannot be told
 apart: F is both. cos theta = 1 / |d|: every ray direction has camera-frame z = 1 with the lens
 undone (camera.rays.pixel_directions), and poses and the scene frame only rotate directions.
@@ -254,20 +256,25 @@ class NerfModel(nn.Module):
         colour: bool = True,
         normals: bool | None = None,
         shading_mix: float = 1.0,
+        light: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """Render rays (scene frame). Returns depth (z, scene units), opacity, and when `colour`:
-        rgb (display-encoded), plus normal/cos when computed, the samples t and weights."""
+        rgb (display-encoded), plus normal/cos when computed, the samples t and weights.
+        `light`: the scope's light as a camera pose in the scene frame (4x4: its centre holds
+        the light, its z axis is the light's axis), for an eye that does not carry it (a
+        rectified rig's right eye is lit from the left); None: at each ray's origin."""
         before = self._time
         if self.field.timed and frame is not None:
             self._time = self.frame_time[frame]
         try:
             return self._render_rays(
-                o, d, near, far, frame, jitter, gen, colour, normals, shading_mix
+                o, d, near, far, frame, jitter, gen, colour, normals, (shading_mix, light)
             )
         finally:
             self._time = before
 
-    def _render_rays(self, o, d, near, far, frame, jitter, gen, colour, normals, shading_mix):
+    def _render_rays(self, o, d, near, far, frame, jitter, gen, colour, normals, lighting):
+        shading_mix, light = lighting
         dnorm = d.norm(dim=-1)
         t = self.sample(o, d, near, far, jitter, gen)
         out = self._composite(o, d, t, dnorm, far, colour)
@@ -283,7 +290,8 @@ class NerfModel(nn.Module):
             surf = o + out["depth"].detach()[:, None] * d
             out["normal"] = self.normals(surf)
         if colour:
-            out["rgb"] = self.shade(out, out["albedo"], d, dnorm, frame, shading_mix)
+            lit = None if light is None else (light, o)
+            out["rgb"] = self.shade(out, out["albedo"], d, dnorm, frame, shading_mix, lit)
             if "coarse_rgb_albedo" in out:
                 out["coarse_rgb"] = self.shade(
                     {**out, "depth": out["coarse_depth"]},
@@ -292,6 +300,7 @@ class NerfModel(nn.Module):
                     dnorm,
                     frame,
                     shading_mix,
+                    lit,
                 )
         return out
 
@@ -366,21 +375,32 @@ class NerfModel(nn.Module):
         between = centred[a] * (1 - mix) + centred[b] * mix
         return torch.where(w[:, None], centred, between)
 
-    def shade(self, out, albedo, d, dnorm, frame, mix: float) -> torch.Tensor:
+    def shade(self, out, albedo, d, dnorm, frame, mix: float, lit=None) -> torch.Tensor:
+        """`lit`: (the light's pose in the scene frame, the rays' origins) for a light away from
+        the rays' origins (see `render_rays`); None: the light at the camera centre."""
         cfg = self.cfg.shading
         if not cfg.enabled:
             lin = albedo
         else:
-            r = (out["depth"] * dnorm).clamp_min(1e-3)
+            if lit is None:  # the light at the camera centre: back along the ray
+                r = (out["depth"] * dnorm).clamp_min(1e-3)
+                towards = -d / dnorm[:, None]
+            else:
+                to_light = lit[0][:3, 3] - (lit[1] + d * out["depth"][:, None])
+                r = to_light.norm(dim=-1).clamp_min(1e-3)
+                towards = to_light / r[:, None]
             if "normal" in out and cfg.tilt:
-                cos = (out["normal"] * d).sum(-1).neg().div(dnorm).clamp_min(0.0)
+                cos = (out["normal"] * towards).sum(-1).clamp_min(0.0)
                 cos = mix * cos + (1.0 - mix)
             else:
                 cos = torch.ones_like(r)
             ambient = nn.functional.softplus(self.ambient_raw)
             light = self.log_gain.exp() * cos / r.square() + ambient
             if cfg.falloff == "learned":
-                light = light * self.radial_falloff(1.0 / dnorm)  # cos theta = 1 / |d|
+                # the surface's angle off the light's axis: the ray's own when the light is
+                # at its camera (cos theta = 1 / |d|)
+                axis = 1.0 / dnorm if lit is None else -(towards @ lit[0][:3, 2])
+                light = light * self.radial_falloff(axis)
             lin = albedo * light[:, None]
             if cfg.exposure is True and frame is not None:
                 lin = lin * self._exposure_centred()[frame].exp()

@@ -106,12 +106,15 @@ def render_image(
     chunk: int | None = None,
     colour: bool = True,
     frame: int | None = None,
+    light_c2w: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """Render one camera (world c2w, OpenCV). Returns float32 arrays: depth (H, W), the
     expected z-depth in world units (0 where the ray stays transparent), median (H, W), the
     weights' median z-depth (0 there too), opacity (H, W), spread (H, W; see
     `weight_median_and_spread`), and rgb (H, W, 3) in [0, 1] (display-encoded) when `colour`.
-    `frame` picks a training frame's exposure."""
+    `frame` picks a training frame's exposure. `light_c2w`: the camera (world c2w) that
+    carries the scope's light when the rendered one does not (a rectified rig's right eye is lit
+    from the left eye); None: the light at the rendered camera's centre."""
     h = height or intrinsics.height
     w = width or intrinsics.width
     k = intrinsics if (w, h) == (intrinsics.width, intrinsics.height) else intrinsics.scaled(w, h)
@@ -125,6 +128,10 @@ def render_image(
         indexing="ij",
     )
     o, d = pixel_rays(k, c2w_s, uu.reshape(-1), vv.reshape(-1))
+    light = None
+    if light_c2w is not None:
+        scene = model.box.c2w_to_scene(np.asarray(light_c2w))
+        light = torch.as_tensor(scene, dtype=torch.float32, device=dev)
     chunk = chunk or model.cfg.sampling.chunk
     depth, median, spread, opacity, rgb = [], [], [], [], []
     fr = None if frame is None else torch.tensor([frame], device=dev)
@@ -132,7 +139,13 @@ def render_image(
         oc, dc = o[a : a + chunk], d[a : a + chunk]
         near, far = scene_bounds(model, prior, oc, dc)
         out = model.render_rays(
-            oc, dc, near, far, colour=colour, frame=None if fr is None else fr.expand(len(oc))
+            oc,
+            dc,
+            near,
+            far,
+            colour=colour,
+            frame=None if fr is None else fr.expand(len(oc)),
+            light=light,
         )
         depth.append(out["depth"])
         mid, spread_of = weight_median_and_spread(out, far)
