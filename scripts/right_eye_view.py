@@ -9,7 +9,9 @@ baseline along its +x (docs/formats.md: a rectified rig), in the poses' units (m
 stereo poses are metric). Prints the right eye's PSNR on `--frames` frames (training and
 held-out times alike, spread over the clip), over the right eye's image and over the pixels whose
 surface the left eye saw too (the band the baseline uncovers no left frame showed), beside the
-stage's held-out PSNR. A benchmark.
+stage's held-out PSNR; an instrument the detector finds in the right eye is left out, as ingest
+leaves the left eye's out. The scope's light stays at the left eye (the rig carries one light).
+A benchmark.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from endopipe.stages.ingest.config import IngestConfig
 from endopipe.stages.ingest.masks import specular_mask
 from endopipe.stages.ingest.rig_check import RigCheck, mended_right
 from endopipe.stages.ingest.selection import resize
+from endopipe.stages.ingest.tool_detect import detect_tools
 from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.io.sources import open_input
 from endopipe.stages.nerf import losses
@@ -32,8 +35,9 @@ from endopipe.stages.nerf.render import render_image
 from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
 
-#: The highlight detector as ingest runs it by default.
+#: The highlight and instrument detectors as ingest runs them by default.
 SPECULAR = IngestConfig().specular
+TOOLS = IngestConfig().tools
 
 
 def main() -> None:
@@ -55,6 +59,7 @@ def main() -> None:
     c2w = nerf.c2w(poses)
     position = {f: p for p, f in enumerate(model.meta["frame_ids"])}
     lens = lens_valid_mask(k)
+    fov = ingest.fov() if ingest.fov() is not None else lens.astype(np.uint8) * 255
     ids = [i for i in poses.registered if i in position]
     picked = [ids[int(round(x))] for x in np.linspace(0, len(ids) - 1, min(args.frames, len(ids)))]
     shift = np.eye(4)
@@ -73,9 +78,11 @@ def main() -> None:
             # the right eye moved, the scope's light did not: it stays at the left eye
             out = render_image(model, prior, k, c2w[i] @ shift, frame=position[i], light_c2w=c2w[i])
         rgb = out["rgb"]
-        # not the right eye's black rectification band, nor its highlights (view-dependent:
-        # the left frames' are masked out of training as well)
+        # not the right eye's black rectification band, its highlights (view-dependent) nor an
+        # instrument in it: the left frames' are left out of training and scoring as well
         usable = lens & (right.max(-1) > 0.02) & (specular_mask(right_u8, SPECULAR) == 0)
+        if ingest.tool_mask(i) is not None:  # ingest found or was given the left eye's
+            usable &= ~detect_tools(right_u8, fov, TOOLS)
         both = usable & seen_by_left(k, out["depth"], shift, lens)
         err = ((rgb - right) ** 2).mean(-1)
         scores.append(losses.psnr(float(err[usable].mean())))
