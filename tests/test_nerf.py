@@ -269,6 +269,7 @@ def test_paper_preset_trains_with_coarse_and_fine_passes(tmp_path):
     cfg = NerfConfig.model_validate(raw)
     assert cfg.field.encoding == "positional" and cfg.sampling.n_fine == 128
     assert cfg.train.steps == 200000 and cfg.train.time_budget_s is None
+    assert cfg.train.still_steps == 1.0  # the seed trains a still camera as any other
     cfg.sampling.n_coarse, cfg.sampling.n_fine = 16, 16
     cfg.train.steps, cfg.train.batch_rays = 3, 64
     frames, train, held, prior, box, k, poses, _ = tiny_setup(cfg, n_frames=4)

@@ -24,7 +24,11 @@ from endopipe.stages.centerline.choose import (
 from endopipe.stages.centerline.config import CenterlineConfig
 from endopipe.stages.centerline.prior import FreePrior, LumenPrior, load_prior, save_prior
 from endopipe.stages.centerline.tube import fit_tube
-from endopipe.stages.nerf.auto_settings import free_scene_settings, weigh_prior
+from endopipe.stages.nerf.auto_settings import (
+    free_scene_settings,
+    still_camera_settings,
+    weigh_prior,
+)
 from endopipe.stages.nerf.bounds import PriorBounds
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.scene import SceneBox
@@ -243,3 +247,20 @@ def test_a_moving_camera_without_a_prior_gets_the_free_scene_field() -> None:
     own = free_scene_settings(cfg, free, moving, lines.append)
     assert own.field.warp is False and own.field.appearance_time is False
     assert own.shading.exposure is False
+
+
+def test_a_still_camera_trains_longer_and_a_moving_one_does_not() -> None:
+    """A still camera's held-out frames are new times from the same view, and more steps bring
+    them closer (the cutting clip); a moving camera's more steps fit only its training frames
+    (the sinus window). The paper preset keeps the seed's steps."""
+    cfg = NerfConfig()
+    lines: list[str] = []
+    moving = SimpleNamespace(still=False, one_pair=False)
+    still = SimpleNamespace(still=True, one_pair=False)
+    assert still_camera_settings(cfg, moving, lines.append).train.steps == cfg.train.steps
+    assert not lines
+    longer = still_camera_settings(cfg, still, lines.append)
+    assert longer.train.steps == round(1.5 * cfg.train.steps) == 2250
+    assert any("2250 steps" in line and "still camera" in line for line in lines)
+    cfg.train.still_steps = 1.0
+    assert still_camera_settings(cfg, still, lines.append).train.steps == cfg.train.steps

@@ -65,8 +65,9 @@ def choose_geometry(cfg: NerfConfig, prior, log) -> NerfConfig:
 
 def still_camera_settings(cfg: NerfConfig, poses, log) -> NerfConfig:
     """A still camera's field: its grid unwarped (when `field.warp` is auto), its shading
-    without n.l and its stereo rays' density held at their depth (why: below and in
-    `LossConfig.stereo_spread`, whose auto is resolved here for any camera)."""
+    without n.l, more steps (`train.still_steps`) and its stereo rays' density held at their
+    depth (why: below and in `LossConfig.stereo_spread`, whose auto is resolved here for any
+    camera)."""
     spread = cfg.loss.spread_weight(poses.still)
     cfg = cfg.model_copy(update={"loss": cfg.loss.model_copy(update={"stereo_spread": spread})})
     if poses.still and cfg.field.warp == "auto":
@@ -82,6 +83,13 @@ def still_camera_settings(cfg: NerfConfig, poses, log) -> NerfConfig:
         shading = cfg.shading.model_copy(update={"normal_term": False})
         cfg = cfg.model_copy(update={"shading": shading})
         log("shading without n.l: a still camera does not see a surface's tilt")
+    if poses.still and cfg.train.still_steps > 1.0:
+        steps = round(cfg.train.steps * cfg.train.still_steps)
+        cfg = cfg.model_copy(update={"train": cfg.train.model_copy(update={"steps": steps})})
+        log(
+            f"{steps} steps ({cfg.train.still_steps:g} x nerf.train.steps): a still camera's "
+            "field is starved of rays, and its held-out frames are new times, not new views"
+        )
     return cfg
 
 

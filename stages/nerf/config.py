@@ -153,6 +153,15 @@ class TrainConfig(ConfigSection):
         "result then depends on the machine; the log, summary and report say at which step "
         "(null: all steps, always).",
     )
+    still_steps: float = Field(
+        1.5,
+        ge=1.0,
+        description="A still camera's steps, as a multiple of `steps`: its field is starved of "
+        "rays, and a held-out frame is a new time from the same view, which more steps bring "
+        "closer (the cutting clip, 4 held-out frames: 30.29 dB at 2250 steps against 29.12 at "
+        "1500); a moving camera's more steps fit its training frames, not its new views (the "
+        "sinus window: 24.84 dB at 2250 steps against 24.89 at 1500).",
+    )
     batch_rays: int = Field(1024, ge=16, description="Rays per step.")
     lr_grid: float = Field(0.02, gt=0, description="Learning rate of grid / hash parameters.")
     lr_mlp: float = Field(1e-3, gt=0, description="Learning rate of MLP parameters.")
