@@ -12,12 +12,12 @@ needed). Frames are display-encoded: colour^(1/gamma), gamma fixed or learned.
 The scope's photometry (each piece optional, `ShadingConfig`): a per-frame exposure (log gain,
 zero-mean over the training frames, so held-out frames, which have none, get the mean) and a
 radial falloff F(theta) = exp(sum_k a_k (1 - cos theta)^k) of the ray's angle theta to the
-optical axis. A view that does not carry the light (a rectified rig's right eye, lit from the
-left) is shaded from the light's own pose instead (`render_rays(light=...)`). With the light at
-the camera centre and symmetric about the axis, the light's
+optical axis. With the light at the camera centre and symmetric about the axis, the light's
 emission angle is theta too, so its angular profile and the lens's vignetting cannot be told
 apart: F is both. cos theta = 1 / |d|: every ray direction has camera-frame z = 1 with the lens
 undone (camera.rays.pixel_directions), and poses and the scene frame only rotate directions.
+A view that does not carry the light (a rectified rig's right eye, lit from the left) is
+shaded from the light's own pose instead (`render_rays(light=...)`).
 """
 
 from __future__ import annotations
