@@ -384,13 +384,15 @@ class NerfModel(nn.Module):
         else:
             if lit is None:  # the light at the camera centre: back along the ray
                 r = (out["depth"] * dnorm).clamp_min(1e-3)
-                towards = -d / dnorm[:, None]
             else:
                 to_light = lit[0][:3, 3] - (lit[1] + d * out["depth"][:, None])
                 r = to_light.norm(dim=-1).clamp_min(1e-3)
                 towards = to_light / r[:, None]
             if "normal" in out and cfg.tilt:
-                cos = (out["normal"] * towards).sum(-1).clamp_min(0.0)
+                if lit is None:
+                    cos = (out["normal"] * d).sum(-1).neg().div(dnorm).clamp_min(0.0)
+                else:
+                    cos = (out["normal"] * towards).sum(-1).clamp_min(0.0)
                 cos = mix * cos + (1.0 - mix)
             else:
                 cos = torch.ones_like(r)
