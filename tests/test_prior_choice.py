@@ -252,7 +252,7 @@ def test_a_moving_camera_without_a_prior_gets_the_free_scene_field() -> None:
 def test_a_still_camera_trains_longer_and_a_moving_one_does_not() -> None:
     """A still camera's held-out frames are new times from the same view, and more steps bring
     them closer (the cutting clip); a moving camera's more steps fit only its training frames
-    (the sinus window). The paper preset keeps the seed's steps."""
+    (the sinus window). A factor of 1 (the paper preset's) keeps the steps as given."""
     cfg = NerfConfig()
     lines: list[str] = []
     moving = SimpleNamespace(still=False, one_pair=False)
