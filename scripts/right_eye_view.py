@@ -59,7 +59,9 @@ def main() -> None:
     c2w = nerf.c2w(poses)
     position = {f: p for p, f in enumerate(model.meta["frame_ids"])}
     lens = lens_valid_mask(k)
-    fov = ingest.fov() if ingest.fov() is not None else lens.astype(np.uint8) * 255
+    fov = ingest.fov()
+    if fov is None:
+        fov = lens.astype(np.uint8) * 255
     ids = [i for i in poses.registered if i in position]
     picked = [ids[int(round(x))] for x in np.linspace(0, len(ids) - 1, min(args.frames, len(ids)))]
     shift = np.eye(4)

@@ -268,13 +268,14 @@ class NerfModel(nn.Module):
             self._time = self.frame_time[frame]
         try:
             return self._render_rays(
-                o, d, near, far, frame, jitter, gen, colour, normals, (shading_mix, light)
+                o, d, near, far, frame, jitter, gen, colour, normals, shading_mix, light
             )
         finally:
             self._time = before
 
-    def _render_rays(self, o, d, near, far, frame, jitter, gen, colour, normals, lighting):
-        shading_mix, light = lighting
+    def _render_rays(
+        self, o, d, near, far, frame, jitter, gen, colour, normals, shading_mix, light
+    ):
         dnorm = d.norm(dim=-1)
         t = self.sample(o, d, near, far, jitter, gen)
         out = self._composite(o, d, t, dnorm, far, colour)
