@@ -76,3 +76,24 @@ def test_unknown_field_pixels_stay_unknown_unless_measured() -> None:
     assert np.allclose(out[5:10], z[5:10])  # the rig measured it
     out, _ = anchored_depth(field, stereo, paste=False, sigma_px=4.0)
     assert (out[:10] == 0).all()  # points never paste
+
+
+def test_wide_blurs_on_a_shrunk_image_spread_as_the_direct_ones(monkeypatch) -> None:
+    """The spread's coarse scales (wider than the frame) blur a shrunk image: the correction
+    they give stays within noise of the direct, hundred-times slower blurs."""
+    import endopipe.stages.depth.anchor as anchor
+
+    h, w = 300, 320
+    v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+    log_ratio = np.log(1.5 + 0.3 * np.sin(u / 40.0) + 0.2 * np.cos(v / 30.0)).astype(np.float32)
+    rng = np.random.default_rng(0)
+    for n, sigma, tolerance in ((300, 16.0, 1e-3), (50, 32.0, 1e-2)):
+        where = np.zeros((h, w), bool)
+        where.flat[rng.choice(h * w, n, replace=False)] = True
+        values = np.where(where, log_ratio + rng.normal(0, 0.05, (h, w)), 0).astype(np.float32)
+        shrunk = anchor.spread(values, where, sigma, 0.1)
+        monkeypatch.setattr(anchor, "COARSE_SIGMA_PX", 1e9)  # every blur direct
+        direct = anchor.spread(values, where, sigma, 0.1)
+        monkeypatch.undo()
+        assert float(np.abs(shrunk - direct).max()) < tolerance, (n, sigma)
+        assert float(np.ptp(direct)) > 0.3  # the correction does vary over the frame

@@ -92,15 +92,41 @@ def spread(values: np.ndarray, where: np.ndarray, sigma_px: float, default: floa
     out = np.zeros(values.shape, np.float32)
     for k in (3, 2, 1, 0):
         s = sigma_px * 4.0**k
-        den = cv2.GaussianBlur(weight, (0, 0), s)
-        mean = cv2.GaussianBlur(wv, (0, 0), s) / np.maximum(den, 1e-12)
-        var = np.maximum(cv2.GaussianBlur(wvv, (0, 0), s) / np.maximum(den, 1e-12) - mean**2, 0)
+        den, sum_v, sum_vv = wide_blur((weight, wv, wvv), s)
+        mean = sum_v / np.maximum(den, 1e-12)
+        var = np.maximum(sum_vv / np.maximum(den, 1e-12) - mean**2, 0)
         count = den * (2 * np.pi * s**2)  # measurements within about one sigma
         noise = SIGNIFICANCE**2 * var / np.maximum(count, 1.0)
         mean = mean * mean**2 / np.maximum(mean**2 + noise, 1e-12)
         trust = count / (count + PRIOR_WEIGHT)
         out = trust * mean + (1 - trust) * out
     return out + default
+
+
+#: A blur wider than this (pixels) runs on the image shrunk to keep its sigma near it.
+COARSE_SIGMA_PX = 16.0
+
+
+def wide_blur(images: tuple[np.ndarray, ...], sigma_px: float) -> tuple[np.ndarray, ...]:
+    """Each image Gaussian-blurred at `sigma_px`. Why: a direct blur costs its kernel's width per
+    pixel, and the coarsest scale of `spread` is wider than the image (64 x 16 px: three seconds
+    a frame of 640 x 480 for `spread`'s blurs). A blur that wide is computed on the image shrunk
+    by area averaging (which keeps local means, so the weighted means stay) to a sigma of
+    COARSE_SIGMA_PX, and enlarged back: `spread` then differs from the direct blurs by under
+    1e-4 in log depth on a 320 x 300 frame with 300 points, 0.006 with 50
+    (tests/test_depth_anchor.py), at a hundredth of the time."""
+    h, w = images[0].shape
+    shrink = sigma_px / COARSE_SIGMA_PX
+    if shrink < 2.0:
+        return tuple(cv2.GaussianBlur(im, (0, 0), sigma_px) for im in images)
+    size = (max(int(round(w / shrink)), 1), max(int(round(h / shrink)), 1))
+    s_small = sigma_px * size[0] / w
+    out = []
+    for im in images:
+        small = cv2.resize(im, size, interpolation=cv2.INTER_AREA)
+        small = cv2.GaussianBlur(small, (0, 0), s_small)
+        out.append(cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR))
+    return tuple(out)
 
 
 def sparse_map(uv: np.ndarray, z: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
