@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from endopipe.stages.depth import anchor
 from endopipe.stages.depth.anchor import anchored_depth, sparse_map
 
 H, W = 120, 160
@@ -81,8 +82,6 @@ def test_unknown_field_pixels_stay_unknown_unless_measured() -> None:
 def test_wide_blurs_on_a_shrunk_image_spread_as_the_direct_ones(monkeypatch) -> None:
     """The spread's coarse scales (wider than the frame) blur a shrunk image: the correction
     they give stays within noise of the direct, hundred-times slower blurs."""
-    import endopipe.stages.depth.anchor as anchor
-
     h, w = 300, 320
     v, u = np.mgrid[0:h, 0:w].astype(np.float32)
     log_ratio = np.log(1.5 + 0.3 * np.sin(u / 40.0) + 0.2 * np.cos(v / 30.0)).astype(np.float32)
