@@ -390,7 +390,7 @@ class NerfModel(nn.Module):
                 r = to_light.norm(dim=-1).clamp_min(1e-3)
                 towards = to_light / r[:, None]
             if "normal" in out and cfg.tilt:
-                if lit is None:
+                if lit is None:  # -d / |d|, in the float order trained fields were fitted in
                     cos = (out["normal"] * d).sum(-1).neg().div(dnorm).clamp_min(0.0)
                 else:
                     cos = (out["normal"] * towards).sum(-1).clamp_min(0.0)
