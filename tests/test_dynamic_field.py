@@ -66,6 +66,59 @@ def test_points_at_one_time_get_the_values_and_gradients_of_the_change_corners()
             assert torch.allclose(a, b, atol=1e-5)
 
 
+def test_points_at_a_few_times_read_the_lines_sliced_at_each_alike():
+    """A batch drawn from a few frames (`frames_per_step`) reads the lines sliced at each of
+    its times: the values and gradients of the change's (w, time) corners, point by point;
+    more distinct times than the limit read the corners."""
+    g = VMTimeGrid((12, 9, 10), 4, times=7)
+    g.change.data.normal_(0.0, 1.0)
+    x = torch.rand(600, 4) * 2 - 1
+    x[:, 3] = torch.tensor([-1.0, -0.41, 0.2, 0.93])[torch.randint(0, 4, (600,))]
+    values, grads = [], []
+    for limit in (1, 4, 3):
+        g.slice_up_to = limit
+        assert (g.prepare(x)[4] is None) == (limit == 4)
+        out = g(x)
+        out.square().sum().backward()
+        values.append(out.detach())
+        grads.append((g.change.grad.clone(), g.lines.grad.clone(), g.planes.grad.clone()))
+        g.zero_grad(set_to_none=True)
+    assert torch.allclose(values[0], values[1], atol=1e-5)
+    for a, b in zip(grads[0], grads[1], strict=True):
+        assert torch.allclose(a, b, atol=1e-4)
+    assert g.upsampled((13, 10, 11)).slice_up_to == 3
+
+
+def test_a_batch_of_a_few_frames_draws_their_usable_pixels_alike():
+    """Each batch comes from `frames_per_step` training frames, every usable pixel of theirs
+    (masks honoured, patches inside the frames chosen), and over many batches from every
+    training frame about as often."""
+    from endopipe.stages.nerf.data import RaySampler
+
+    k = intrinsics()
+    n, h, w = 10, k.height, k.width
+    masks = np.ones((n, h, w), bool)
+    masks[:, :, :4] = False  # a band no ray may come from
+    masks[3] = False  # a frame with no usable pixel
+    images = np.random.default_rng(0).random((n, h, w, 3), dtype=np.float32)
+    c2w = np.tile(np.eye(4, dtype=np.float32), (n, 1, 1))
+    frames = FrameSet(images, masks, c2w, k, list(range(n)), torch.device("cpu"))
+    train = [0, 1, 2, 3, 5, 6, 7, 9]
+    gen = torch.Generator().manual_seed(0)
+    sampler = RaySampler(frames, train, 200, 2, 0.2, gen, frames_per_step=3)
+    counts = torch.zeros(n)
+    for _ in range(300):
+        b = sampler.sample()
+        used = torch.unique(b.frame)
+        assert len(used) <= 3 and set(used.tolist()) <= set(train) - {3}
+        singles = slice(b.n_patches * 4, None)
+        assert bool(b.valid[singles].all()) and bool((b.u[singles] >= 4).all())
+        counts += torch.bincount(b.frame, minlength=n)
+    share = counts[[0, 1, 2, 5, 6, 7, 9]] / counts.sum()
+    assert float(share.min()) > 0.1 and float(share.max()) < 0.19, share
+    assert counts[3] == 0 and counts[4] == 0 and counts[8] == 0
+
+
 def still_camera_frames(cfg, n: int = 9):
     """The tube seen from one place, its colour fading from red-tinted to blue-tinted."""
     frames, _, _, prior, box, k, poses, _ = tiny_setup(cfg, n_frames=n)

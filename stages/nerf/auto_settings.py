@@ -123,6 +123,10 @@ def free_scene_settings(cfg: NerfConfig, prior, poses, log) -> NerfConfig:
     return cfg.model_copy(update={"shading": shading, "field": field.model_copy(update=update)})
 
 
+#: Frames a dynamic field's training step draws its rays from (`train.frames_per_step` auto).
+STILL_FRAMES_PER_STEP = 8
+
+
 def choose_dynamic(cfg: NerfConfig, poses, n_frames: int, log) -> NerfConfig:
     """field.dynamic auto: a field that changes with time where the poses stage found the scene
     moving under a still camera, the static field otherwise; the log says which and why.
@@ -140,6 +144,11 @@ def choose_dynamic(cfg: NerfConfig, poses, n_frames: int, log) -> NerfConfig:
         )
         log(f"field auto: {'dynamic (space-time planes)' if moving else 'static'}: {why}")
     nodes = cfg.field.time_nodes or int(np.clip(round(n_frames / 2), 4, 64))
+    if cfg.train.frames_per_step == "auto":
+        per_step = STILL_FRAMES_PER_STEP if dynamic is True else 0
+        cfg = cfg.model_copy(
+            update={"train": cfg.train.model_copy(update={"frames_per_step": per_step})}
+        )
     if dynamic is False:
         update: dict = {"dynamic": False}
         timed = cfg.field.appearance_time
@@ -164,7 +173,9 @@ def choose_dynamic(cfg: NerfConfig, poses, n_frames: int, log) -> NerfConfig:
         }
     )
     loss = cfg.loss.model_copy(update={"geo": False})
-    log(f"dynamic field: {nodes} time nodes over {n_frames} frames; multi-frame depth off")
+    per = cfg.train.frames_per_step
+    batch = f"; each step's rays from {per} frames" if per else ""
+    log(f"dynamic field: {nodes} time nodes over {n_frames} frames; multi-frame depth off{batch}")
     return cfg.model_copy(update={"field": field, "loss": loss})
 
 

@@ -163,6 +163,15 @@ class TrainConfig(ConfigSection):
         "sinus window: 24.84 dB at 2250 steps against 24.89 at 1500).",
     )
     batch_rays: int = Field(1024, ge=16, description="Rays per step.")
+    frames_per_step: int | Literal["auto"] = Field(
+        "auto",
+        description="Training frames a step's rays are drawn from (0: each ray from any). A "
+        "field over time then reads its lines sliced at those few times instead of each "
+        "ray's corners in (w, time). auto: 8 for a field whose geometry changes with time (a "
+        "still camera's: the cutting clip at 2250 steps in 326 s against 344, held-out 30.30 "
+        "dB against 30.31), 0 otherwise (a moving camera's step sees its views from every "
+        "part of the path).",
+    )
     lr_grid: float = Field(0.02, gt=0, description="Learning rate of grid / hash parameters.")
     lr_mlp: float = Field(1e-3, gt=0, description="Learning rate of MLP parameters.")
     lr_decay: float = Field(
@@ -197,6 +206,13 @@ class TrainConfig(ConfigSection):
         description="Training frames rendered after training to measure the fit (spread over "
         "the sequence; 0: none, and no word on whether the field learned its images).",
     )
+
+    @field_validator("frames_per_step")
+    @classmethod
+    def _frames_not_negative(cls, v: int | str) -> int | str:
+        if isinstance(v, int) and v < 0:
+            raise ValueError("must be 0 or more, or auto")
+        return v
 
 
 class PoseRefineConfig(ConfigSection):

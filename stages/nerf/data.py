@@ -83,7 +83,11 @@ class FrameSet:
 
 class RaySampler:
     """Random rays of the training frames: single pixels and p x p patches (for L_smooth, the
-    normal variance and L_geo), all inside the usable mask (patch pixels may leave it)."""
+    normal variance and L_geo), all inside the usable mask (patch pixels may leave it).
+
+    `frames_per_step` > 0: each batch is drawn from that many training frames chosen at random
+    (every pixel of theirs alike), so a timed field reads its lines sliced at a few times
+    (`VMTimeGrid.slice_up_to`); 0: each ray from any training frame."""
 
     def __init__(
         self,
@@ -93,10 +97,12 @@ class RaySampler:
         patch: int,
         patch_fraction: float,
         gen: torch.Generator,
+        frames_per_step: int = 0,
     ) -> None:
         self.f = frames
         self.train = torch.as_tensor(train, dtype=torch.long, device=frames.device)
         self.batch, self.patch = batch, patch
+        self.frames_per_step = min(int(frames_per_step), len(train))
         self.n_patches = int(round(batch * patch_fraction / (patch * patch)))
         self.n_single = batch - self.n_patches * patch * patch
         self.gen = gen
@@ -113,12 +119,38 @@ class RaySampler:
         self.corner_w = ww
         if len(self.valid_pix) == 0:
             raise ValueError("no usable pixels in the training frames (masks are all 0)")
+        # Where each training frame's pixels and corners lie in the lists above (frame-major).
+        self.valid_span = _spans(pos[:, 0], len(train))
+        self.corner_span = _spans(cpos[:, 0], len(train))
+
+    def _draw(self, n: int, total: int, spans, chosen) -> torch.Tensor:
+        """n random entries of a frame-major list: any entry, or one of the chosen frames'
+        (each of them about as often, every entry of a frame alike)."""
+        dev, g = self.f.device, self.gen
+        if chosen is None:
+            return torch.randint(total, (n,), generator=g, device=dev)
+        start, count = spans
+        slot = chosen[torch.randint(len(chosen), (n,), generator=g, device=dev)]
+        u = torch.rand(n, generator=g, device=dev)
+        return start[slot] + (u * count[slot]).long().minimum(count[slot] - 1)
+
+    def _chosen_frames(self) -> torch.Tensor | None:
+        """This batch's training frames (positions in `train` with usable pixels), or None."""
+        if self.frames_per_step <= 0:
+            return None
+        usable = torch.nonzero(self.valid_span[1] > 0)[:, 0]
+        pick = torch.randperm(len(usable), generator=self.gen, device=self.f.device)
+        return usable[pick[: self.frames_per_step]]
 
     def sample(self) -> Batch:
-        dev, g = self.f.device, self.gen
+        dev = self.f.device
         frames, us, vs = [], [], []
-        if self.n_patches and len(self.corner_pix):
-            k = torch.randint(len(self.corner_pix), (self.n_patches,), generator=g, device=dev)
+        chosen = self._chosen_frames()
+        corners = chosen
+        if chosen is not None:  # the chosen frames with room for a patch
+            corners = chosen[self.corner_span[1][chosen] > 0]
+        if self.n_patches and len(self.corner_pix) and (corners is None or len(corners)):
+            k = self._draw(self.n_patches, len(self.corner_pix), self.corner_span, corners)
             fr = self.corner_frame[k].long()
             pix = self.corner_pix[k].long()
             v0, u0 = pix // self.corner_w, pix % self.corner_w
@@ -134,7 +166,7 @@ class RaySampler:
         else:
             n_patches = 0
         n_single = self.batch - n_patches * self.patch**2
-        k = torch.randint(len(self.valid_pix), (n_single,), generator=g, device=dev)
+        k = self._draw(n_single, len(self.valid_pix), self.valid_span, chosen)
         frames.append(self.valid_frame[k].long())
         pix = self.valid_pix[k].long()
         vs.append(pix // self.f.w)
@@ -149,6 +181,13 @@ class RaySampler:
             n_patches=n_patches,
             patch=self.patch,
         )
+
+
+def _spans(frame_of: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(start, count) of each of n frames in a frame-major list whose entries' frames (0..n-1,
+    sorted) are `frame_of`."""
+    count = torch.bincount(frame_of, minlength=n)
+    return torch.cumsum(count, 0) - count, count
 
 
 def neighbours(train: list[int]) -> dict[int, int]:

@@ -196,6 +196,11 @@ class VMTimeGrid(VMGrid):
     in [-1, 1]. Upsampling refines space only (the time nodes are fixed).
     """
 
+    #: Points at up to this many distinct times read the lines sliced at each of them: a
+    #: batch drawn from a few frames (`nerf.train.frames_per_step`) sets it; 1: only points all
+    #: at one time (a frame rendered at its own).
+    slice_up_to: int = 1
+
     def __init__(
         self, res: tuple[int, int, int], channels: int, times: int, init_std: float = 0.1
     ) -> None:
@@ -204,15 +209,22 @@ class VMTimeGrid(VMGrid):
         self.change = nn.Parameter(torch.zeros(self.times * self._line_rows(), channels))
 
     def prepare(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """As VMGrid's, and where the change is read. Points all at one time (a frame rendered
-        at its own) read the lines sliced at that time (`sliced`): `cidx` is None and `cw` the
-        time. Otherwise the change's (w, time) corners and weights. (Slicing at each of a
-        training batch's frames instead made a step slower: 221 ms against 194, three runs
-        of 60 steps each on the cutting clip, scripts/bench_nerf_step.py.)"""
+        """As VMGrid's, and where the change is read. Points at no more than `slice_up_to`
+        distinct times read the lines sliced at those times (`sliced`): `cidx` is None, `cw`
+        the times and `lidx` points into the slice of each point's time. Otherwise the
+        change's (w, time) corners and weights. (Slicing at each of a training batch's
+        frames, 136 times, made a step slower: 221 ms against 194, three runs of 60 steps each
+        on the cutting clip, scripts/bench_nerf_step.py; the slice's backward grows with its
+        times.)"""
         pidx, pw, lidx, lw = super().prepare(x[:, :3])
         t = x[:, 3]
         if x.shape[0] and bool((t == t[0]).all()):
             return pidx, pw, lidx, lw, None, t[:1]
+        if x.shape[0] and self.slice_up_to > 1:
+            times, which = torch.unique(t, return_inverse=True)
+            if len(times) <= self.slice_up_to:
+                shift = which.repeat_interleave(len(self.PAIRS)) * self._line_rows()
+                return pidx, pw, lidx + shift[:, None], lw, None, times
         _, _, c, res, _, _, loff, _ = self._constants(x.device)
         with torch.no_grad():
             p = ((x[:, :3] + 1.0) * (0.5 * (res - 1))).clamp_(min=0.0).minimum(res - 1.0)
@@ -234,7 +246,7 @@ class VMTimeGrid(VMGrid):
     ) -> torch.Tensor:
         pidx, pw, lidx, lw, cidx, cw = prep if prep is not None else self.prepare(x)
         plane = gather_interp(self.planes, pidx, pw)
-        if cidx is None:  # the lines at the time `cw` (the same sums, a third less time)
+        if cidx is None:  # the lines at the times `cw` (the same sums, a third less time)
             line = gather_interp(self.sliced(cw), lidx, lw)
         else:
             line = gather_interp(self.lines, lidx, lw) + gather_interp(self.change, cidx, cw)
@@ -261,6 +273,7 @@ class VMTimeGrid(VMGrid):
     def upsampled(self, res: tuple[int, int, int]) -> VMTimeGrid:
         space = VMGrid.upsampled(self, res)
         new = VMTimeGrid(res, self.channels, self.times)
+        new.slice_up_to = self.slice_up_to
         new.planes, new.lines = space.planes, space.lines
         change, off = [], 0
         for *_, c in self.PAIRS:

@@ -243,6 +243,13 @@ class TensorfField(RadianceField):
         self.app_grid = self.app_grid.upsampled(res)
         self.res_now = torch.tensor(res)
 
+    def slice_times_up_to(self, n: int) -> None:
+        """Points at up to n distinct times read their lines sliced at those times (a batch
+        drawn from n frames, `RaySampler`); kept across upsamplings."""
+        for grid in (self.density_grid, self.app_grid):
+            if isinstance(grid, VMTimeGrid):
+                grid.slice_up_to = max(int(n), 1)
+
     def on_progress(self, progress: float) -> bool:
         super().on_progress(progress)
         res = self._res(self.cfg.tensorf.res_init)

@@ -134,9 +134,18 @@ class Trainer:
             self.correction = PoseCorrection(frames.n, gauge=train).to(self.device)
         frames.correction, frames.refining = self.correction, False
         self._train_t = torch.as_tensor(train, dtype=torch.long, device=self.device)
+        per_step = tc.frames_per_step if isinstance(tc.frames_per_step, int) else 0
         self.sampler = RaySampler(
-            frames, train, tc.batch_rays, cfg.loss.patch_size, cfg.loss.patch_fraction, self.gen
+            frames,
+            train,
+            tc.batch_rays,
+            cfg.loss.patch_size,
+            cfg.loss.patch_fraction,
+            self.gen,
+            frames_per_step=per_step,
         )
+        if per_step > 0 and hasattr(self.model.field, "slice_times_up_to"):
+            self.model.field.slice_times_up_to(per_step)
         # Poses that stay as given: every training pixel's ray bounds once, not each step.
         self.pixel_bounds = None if refine_poses else PixelBounds(self.pb, frames, train)
         nb = neighbours(train)
