@@ -260,7 +260,7 @@ def test_a_still_camera_trains_longer_and_a_moving_one_does_not() -> None:
     assert still_camera_settings(cfg, moving, lines.append).train.steps == cfg.train.steps
     assert not lines
     longer = still_camera_settings(cfg, still, lines.append)
-    assert longer.train.steps == round(1.5 * cfg.train.steps) == 2250
-    assert any("2250 steps" in line and "still camera" in line for line in lines)
+    assert longer.train.steps == round(2.0 * cfg.train.steps) == 3000
+    assert any("3000 steps" in line and "still camera" in line for line in lines)
     cfg.train.still_steps = 1.0
     assert still_camera_settings(cfg, still, lines.append).train.steps == cfg.train.steps

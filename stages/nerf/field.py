@@ -159,11 +159,12 @@ class TensorfField(RadianceField):
             self.density_grid = VMTimeGrid(res, t.density_components, cfg.time_nodes, 0.1)
         else:
             self.density_grid = VMGrid(res, t.density_components, init_std=0.1)
+        albedo = t.albedo_components(cfg.dynamic is True)
         if self.timed:
-            self.app_grid = VMTimeGrid(res, t.appearance_components, cfg.time_nodes, 0.1)
+            self.app_grid = VMTimeGrid(res, albedo, cfg.time_nodes, 0.1)
         else:
-            self.app_grid = VMGrid(res, t.appearance_components, init_std=0.1)
-        self.basis = nn.Linear(3 * t.appearance_components, t.appearance_dim, bias=False)
+            self.app_grid = VMGrid(res, albedo, init_std=0.1)
+        self.basis = nn.Linear(3 * albedo, t.appearance_dim, bias=False)
         h = cfg.color_hidden
         self.color = _mlp([t.appearance_dim + self.dir_dim, h, h, 3])
         self.register_buffer("res_now", torch.tensor(res), persistent=True)

@@ -4,7 +4,7 @@ field model reads it alone."""
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field
 
@@ -20,10 +20,21 @@ class TensorfConfig(ConfigSection):
         description="VM components per plane for density (8 underfits the colon's folds: mesh "
         "7.2% of the radius off vs 6.8% at 16, two seeds; 32: no better, slower).",
     )
-    appearance_components: int = Field(
-        32, ge=1, description="VM components per plane for the albedo features."
+    appearance_components: Annotated[int, Field(ge=1)] | Literal["auto"] = Field(
+        "auto",
+        description="VM components per plane for the albedo features. auto: 32, and 16 for a "
+        "field whose geometry changes with time (a still camera's, which learns by steps: "
+        "the cutting clip at 2x the steps (`train.still_steps`) in the same time, held-out "
+        "30.62 / 30.63 dB against 30.30 / 30.25 at 32, seeds 0 / 1).",
     )
     appearance_dim: int = Field(27, ge=1, description="Albedo feature size fed to the colour MLP.")
+
+    def albedo_components(self, dynamic: bool) -> int:
+        """appearance_components as a number (auto resolved for a dynamic field or not)."""
+        if self.appearance_components != "auto":
+            return int(self.appearance_components)
+        return 16 if dynamic else 32
+
     res_init: int = Field(
         96, ge=8, description="Grid nodes along the scene box's longest side at the start."
     )
