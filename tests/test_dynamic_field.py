@@ -42,6 +42,16 @@ def test_space_time_grid_starts_static_and_interpolates_its_change_in_time():
     assert float(g.change_penalty().detach()) > 0
 
 
+def read_with_gradients(g: VMTimeGrid, points: torch.Tensor, rows: int | None = None):
+    """The grid's values at the points (the first `rows` of them) and the gradients of their
+    squares' sum in its change, lines and planes; the gradients are cleared after."""
+    out = g(points)[:rows]
+    out.square().sum().backward()
+    grads = (g.change.grad.clone(), g.lines.grad.clone(), g.planes.grad.clone())
+    g.zero_grad(set_to_none=True)
+    return out.detach(), grads
+
+
 def test_points_at_one_time_get_the_values_and_gradients_of_the_change_corners():
     """A frame rendered at its own time reads the lines sliced there (prepare's fast path);
     its values and gradients are those of the change's (w, time) corners, which a batch at
@@ -54,15 +64,10 @@ def test_points_at_one_time_get_the_values_and_gradients_of_the_change_corners()
         other = torch.tensor([[0.1, 0.2, 0.3, 0.5 if t < 0.5 else -0.5]])  # another time
         both = torch.cat([x, other])
         assert g.prepare(x)[4] is None and g.prepare(both)[4] is not None
-        values, grads = [], []
-        for points in (x, both):
-            out = g(points)[:300]
-            out.square().sum().backward()
-            values.append(out.detach())
-            grads.append((g.change.grad.clone(), g.lines.grad.clone(), g.planes.grad.clone()))
-            g.zero_grad(set_to_none=True)
-        assert torch.allclose(values[0], values[1], atol=1e-6)
-        for a, b in zip(grads[0], grads[1], strict=True):
+        one, one_grads = read_with_gradients(g, x, 300)
+        two, two_grads = read_with_gradients(g, both, 300)
+        assert torch.allclose(one, two, atol=1e-6)
+        for a, b in zip(one_grads, two_grads, strict=True):
             assert torch.allclose(a, b, atol=1e-5)
 
 
@@ -78,11 +83,9 @@ def test_points_at_a_few_times_read_the_lines_sliced_at_each_alike():
     for limit in (1, 4, 3):
         g.slice_up_to = limit
         assert (g.prepare(x)[4] is None) == (limit == 4)
-        out = g(x)
-        out.square().sum().backward()
-        values.append(out.detach())
-        grads.append((g.change.grad.clone(), g.lines.grad.clone(), g.planes.grad.clone()))
-        g.zero_grad(set_to_none=True)
+        value, grad = read_with_gradients(g, x)
+        values.append(value)
+        grads.append(grad)
     assert torch.allclose(values[0], values[1], atol=1e-5)
     for a, b in zip(grads[0], grads[1], strict=True):
         assert torch.allclose(a, b, atol=1e-4)

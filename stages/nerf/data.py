@@ -122,6 +122,7 @@ class RaySampler:
         # Where each training frame's pixels and corners lie in the lists above (frame-major).
         self.valid_span = _spans(pos[:, 0], len(train))
         self.corner_span = _spans(cpos[:, 0], len(train))
+        self.usable_frames = torch.nonzero(self.valid_span[1] > 0)[:, 0]
 
     def _draw(self, n: int, total: int, spans, chosen) -> torch.Tensor:
         """n random entries of a frame-major list: any entry, or one of the chosen frames'
@@ -138,7 +139,7 @@ class RaySampler:
         """This batch's training frames (positions in `train` with usable pixels), or None."""
         if self.frames_per_step <= 0:
             return None
-        usable = torch.nonzero(self.valid_span[1] > 0)[:, 0]
+        usable = self.usable_frames
         pick = torch.randperm(len(usable), generator=self.gen, device=self.f.device)
         return usable[pick[: self.frames_per_step]]
 
