@@ -114,3 +114,20 @@ def test_without_its_input_the_case_runs_from_its_cache_or_says_what_to_do(
     (line,) = [line for line in out.splitlines() if line.strip()]
     assert "are gone and ingest must re-run (--from ingest)" in line
     assert line.endswith(f"endopipe run NEW_PATH --workdir {case.parent} --name colon")
+
+
+def test_a_bad_set_on_the_case_folder_blames_the_set_and_a_bad_saved_file_blames_it(
+    workdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """A wrong --set is named as the user's, not as the case's saved settings; saved settings
+    that no longer load are named with what to do. Either way nothing runs."""
+    case = tmp_path / "wd" / "colon"
+    shutil.copytree(workdir / "colon", case)
+    code, out = run(capsys, str(case), *RUN, "--set", "nerf.train.steps=-1")
+    assert code == 2, out
+    assert "nerf.train.steps" in out and "another version" not in out
+    saved = case / "config.yaml"
+    saved.write_text(saved.read_text().replace("  steps: ", "  steps: many # ", 1))
+    code, out = run(capsys, str(case), *RUN)
+    assert code == 2, out
+    assert "another version" in out and str(saved) in out

@@ -63,6 +63,8 @@ def run_case(
     except ConfigError as e:
         if not (is_case_dir(input_path) and (input_path / RUN_CONFIG).is_file()):
             raise
+        if _loads(pipe, input_path / RUN_CONFIG):  # the fault is in --config / --set
+            raise
         raise ConfigError(
             f"{e}; the case's last-run settings no longer load (another version of endopipe "
             f"wrote them): remove {input_path / RUN_CONFIG} to continue with the defaults and "
@@ -178,3 +180,15 @@ def print_pose_doubt(pipe: Pipeline, case_dir: Path) -> None:
             f"(02_poses/verdict.json; the report's poses section names the frames){escape(others)}",
             soft_wrap=True,
         )
+
+
+def _loads(pipe: Pipeline, recorded: Path) -> bool:
+    """Whether a case's last-run settings load alone (without the user's --config / --set)."""
+    from endopipe.pipeline.config import load_config
+    from endopipe.pipeline.errors import ConfigError
+
+    try:
+        load_config(pipe.stages, [str(recorded)], [])
+    except ConfigError:
+        return False
+    return True

@@ -23,6 +23,7 @@ from endopipe.stages.metrics.depth import (
     depth_sequence_metrics,
     image_metrics,
 )
+from endopipe.stages.metrics.exposure import exposure_matched
 from endopipe.stages.nerf.shading_depth import shading_depth
 
 #: The baseline name of the user's depth prior (`--depth-prior`) in `baselines`.
@@ -97,6 +98,7 @@ def evaluate(
     stereo: dict[int, np.ndarray] | None = None,
     prior: dict[int, np.ndarray] | None = None,
     shading: dict[int, np.ndarray] | None = None,
+    fit_exposure: bool = False,
 ) -> dict:
     """Both depth protocols per frame and mean; PSNR / SSIM on held-out frames.
     `baselines` holds the same protocol blocks (means, no per-frame list) for the radial and
@@ -106,7 +108,9 @@ def evaluate(
     camera's (cx, cy) on the working grid (the image centre when None). `metric` poses add the
     unscaled block; a stereo rig's depth maps (`stereo`, by frame) are scored beside ours as a
     guess is, and so are the user's depth prior (`prior`, by frame) and a still camera's depth
-    from shading (`shading`), both relative: no unscaled block. The dict is metrics.json's
+    from shading (`shading`), both relative: no unscaled block. `fit_exposure` (a field with an
+    exposure a frame): each held-out render's exposure and its neighbour average's fitted to the
+    frame, as the nerf stage scored them (metrics/exposure.py). The dict is metrics.json's
     content, which the stage writes as `DepthMetrics`."""
     metrics: dict = {}
     if gt_depths:
@@ -141,23 +145,27 @@ def evaluate(
             metrics["baselines"][name] = scored
     if rgbs:
         ids = sorted(rgbs)
-        per = {
-            i: image_metrics(
-                rgbs[i], ingest.image(i).astype(np.float32) / 255.0, ingest.mask(i) > 127
-            )
-            for i in ids
-        }
+        per = {}
+        for i in ids:
+            frame = ingest.image(i).astype(np.float32) / 255.0
+            rgb = rgbs[i]
+            if fit_exposure:
+                rgb = exposure_matched(rgb, frame, ingest.mask(i) > 127)[0]
+            per[i] = image_metrics(rgb, frame, ingest.mask(i) > 127)
         metrics["heldout_frames"] = ids
         metrics["heldout_psnr"] = float(np.mean([p["psnr"] for p in per.values()]))
         metrics["heldout_ssim"] = float(np.mean([p["ssim"] for p in per.values()]))
         metrics["per_frame_image"] = {str(i): per[i] for i in ids}
-        metrics["neighbour_average"] = neighbour_scores(ingest, ids)
+        metrics["neighbour_average"] = neighbour_scores(ingest, ids, fit_exposure)
     return metrics
 
 
-def neighbour_scores(ingest: IngestView, held: list[int]) -> dict[str, float]:
+def neighbour_scores(
+    ingest: IngestView, held: list[int], fit_exposure: bool = False
+) -> dict[str, float]:
     """PSNR / SSIM of the held-out frames predicted by averaging their neighbours (the nearest
-    frames before and after that were trained on), on the same pixels as ours."""
+    frames before and after that were trained on), on the same pixels as ours, the exposure
+    fitted to the frame as ours is (`fit_exposure`)."""
     order = [f.index for f in ingest.frames]
     rows = []
     for i in held:
@@ -165,9 +173,10 @@ def neighbour_scores(ingest: IngestView, held: list[int]) -> dict[str, float]:
         if not near:
             continue
         guess = neighbour_average([ingest.image(j).astype(np.float32) / 255.0 for j in near])
-        rows.append(
-            image_metrics(guess, ingest.image(i).astype(np.float32) / 255.0, ingest.mask(i) > 127)
-        )
+        frame = ingest.image(i).astype(np.float32) / 255.0
+        if fit_exposure:
+            guess = exposure_matched(guess, frame, ingest.mask(i) > 127)[0]
+        rows.append(image_metrics(guess, frame, ingest.mask(i) > 127))
     if not rows:
         return {}
     return {k: float(np.mean([r[k] for r in rows])) for k in ("psnr", "ssim")}

@@ -163,6 +163,7 @@ class Depth(Stage):
             (stereo or None) if nerf.trained else None,  # a pair alone: ours is the stereo
             prior_maps(ingest, list(depths)) or None,
             shading,
+            nerf.trained and nerf.metrics is not None and nerf.metrics.exposure_fitted,
         )
         if support is not None and gt_depths:
             by = scores_by_support(gt, ingest, depths, gt_depths, support.seen_again_maps)

@@ -13,6 +13,7 @@ from endopipe.stages.camera import lens_valid_mask
 from endopipe.stages.io.ground_truth import depth_of_frame
 from endopipe.stages.metrics.baselines import neighbour_average, neighbour_frames
 from endopipe.stages.metrics.depth import depth_sequence_metrics
+from endopipe.stages.metrics.exposure import exposure_matched
 from endopipe.stages.nerf import losses
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.files import HELDOUT_PAIRS_FILE, HELDOUT_RGB_DIR
@@ -26,12 +27,16 @@ def evaluate(
     model, prior, ingest, k, c2w, ids, held_ids, train_ids, cfg: NerfConfig, ctx, rests_on: str
 ) -> NerfMetrics:
     """Render the held-out frames (PSNR on usable pixels, depth metrics against ground truth)
-    and a few training frames (the fit), beside the neighbour average of the held-out ones."""
+    and a few training frames (the fit), beside the neighbour average of the held-out ones.
+    A field with an exposure a frame has each held-out render's exposure fitted to the frame
+    (metrics/exposure.py), the neighbour average too; the PSNR with the exposure its trained
+    neighbours interpolate is kept beside."""
     held = held_ids[: cfg.train.eval_frames] if cfg.train.eval_frames else held_ids
     gt = ingest.ground_truth_for_scores(ctx.log)
     fov = ingest.fov()
     lens_valid = lens_valid_mask(k)
     pos = {i: p for p, i in enumerate(ids)}
+    fits_exposure = model.cfg.shading.exposure is True
 
     def scored(i: int, rgb: np.ndarray) -> tuple[np.ndarray, float]:
         img = ingest.image(i).astype(np.float32) / 255.0
@@ -39,14 +44,20 @@ def evaluate(
         return img, float(((rgb - img) ** 2).mean(-1)[m].mean()) if m.any() else np.nan
 
     preds, gts, fovs, mses, times, previews, pairs = [], [], [], [], [], [], []
+    interpolated = []  # a fitted exposure's MSE before the fit
     (ctx.out / HELDOUT_RGB_DIR).mkdir(exist_ok=True)
     for i in held:
         t0 = time.perf_counter()
         with model.at_frame(pos[i]):  # a dynamic field: at the frame's own time
             out = render_image(model, prior, k, c2w[pos[i]], frame=pos[i])
         times.append(time.perf_counter() - t0)
-        save_rgb16(ctx.out / HELDOUT_RGB_DIR / f"{i:06d}.png", out["rgb"])  # the depth stage's
         img, mse = scored(i, out["rgb"])
+        if fits_exposure:
+            interpolated.append(mse)
+            scored_px = (ingest.mask(i) > 127) & lens_valid
+            out["rgb"] = exposure_matched(out["rgb"], img, scored_px)[0]
+            mse = scored(i, out["rgb"])[1]
+        save_rgb16(ctx.out / HELDOUT_RGB_DIR / f"{i:06d}.png", out["rgb"])  # the depth stage's
         mses.append(mse)
         pairs.append((i, img, out["rgb"], losses.psnr(mse)))
         g = depth_of_frame(gt, ingest.frame(i))
@@ -65,7 +76,11 @@ def evaluate(
     }
     if mses:
         result["psnr"] = round(float(np.nanmean([losses.psnr(m) for m in mses])), 3)
-        result["neighbour_psnr"] = neighbour_psnr(ingest, held, set(held_ids))
+        result["neighbour_psnr"] = neighbour_psnr(ingest, held, set(held_ids), fits_exposure)
+        result["exposure_fitted"] = fits_exposure
+        if interpolated:
+            psnrs = [losses.psnr(m) for m in interpolated]
+            result["psnr_exposure_interpolated"] = round(float(np.nanmean(psnrs)), 3)
     fitted = spread_out(train_ids, cfg.train.fit_frames)
     fit = []
     for i in fitted:
@@ -100,9 +115,12 @@ def spread_out(ids: list[int], n: int) -> list[int]:
     return [ids[int(round(x))] for x in np.linspace(0, len(ids) - 1, n)]
 
 
-def neighbour_psnr(ingest, held: list[int], skip: set[int]) -> float | None:
+def neighbour_psnr(
+    ingest, held: list[int], skip: set[int], fit_exposure: bool = False
+) -> float | None:
     """The held-out frames' PSNR when each is guessed as the average of its nearest trained
-    neighbours before and after (on the pixels the field's PSNR counts); None without any."""
+    neighbours before and after (on the pixels the field's PSNR counts), its exposure fitted to
+    the frame as the field's render's is (`fit_exposure`); None without any."""
     order = [f.index for f in ingest.frames]
     vals = []
     for i in held:
@@ -112,6 +130,8 @@ def neighbour_psnr(ingest, held: list[int], skip: set[int]) -> float | None:
         guess = neighbour_average([ingest.image(j).astype(np.float32) / 255.0 for j in near])
         img = ingest.image(i).astype(np.float32) / 255.0
         m = ingest.mask(i) > 127
+        if fit_exposure:
+            guess = exposure_matched(guess, img, m)[0]
         vals.append(losses.psnr(float(((guess - img) ** 2).mean(-1)[m].mean())))
     return round(float(np.mean(vals)), 3) if vals else None
 

@@ -20,6 +20,11 @@ class NerfMetrics(MetricsFile):
     render_rgb_ms: float | None = None  # median time to render one, colour and depth
     psnr: float | None = None  # mean over them, on their usable pixels
     neighbour_psnr: float | None = None  # ... each guessed as its two neighbours' average
+    # A field with an exposure a frame: each held-out render's (and neighbour average's) exposure
+    # fitted to the frame's left half (metrics/exposure.py); the PSNR with the exposure the
+    # trained neighbours interpolate, before that fit.
+    exposure_fitted: bool = False
+    psnr_exposure_interpolated: float | None = None
     train_psnr: float | None = None  # a few training frames rendered (the fit), same pixels
     fit_frames: list[int] = []  # ... which
     fit: str | None = None  # fit.py's word: learned | learned, not held out | not learned

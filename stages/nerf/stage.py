@@ -424,6 +424,12 @@ class Nerf(Stage):
             trainer.depth_sources(),
         )
         ctx.log(evaluation.fit_said)
+        if evaluation.psnr_exposure_interpolated is not None:
+            ctx.log(
+                "held-out frames scored with their exposure fitted to the frame's left half "
+                f"(a gain a channel; the neighbour average too): with the exposure their "
+                f"trained neighbours interpolate, {evaluation.psnr_exposure_interpolated:.2f} dB"
+            )
         (ctx.out / CHECKPOINT).unlink(missing_ok=True)
         evaluation.write(ctx.out)
         return NerfSummary(
