@@ -201,6 +201,22 @@ class TrainConfig(ConfigSection):
     eval_frames: int = Field(
         0, ge=0, description="Evaluate at most this many held-out frames (0: all of them)."
     )
+    colour_steps: int = Field(
+        600,
+        ge=0,
+        description="After training, steps that fit the albedo again with the geometry, poses "
+        "and exposures fixed and the light made brighter, when a colour channel's albedo sits "
+        "at its ceiling on more than `colour_ceiling` of the training rays (that channel all "
+        "shading: the field could not render what it saw; the depth stays the same to the bit). "
+        "C3VD preview: held-out PSNR 28.8 dB against 24.1 in about 70 s more. 0: never.",
+    )
+    colour_ceiling: float = Field(
+        0.5,
+        ge=0.0,
+        le=1.0,
+        description="Share of the training rays with a channel's albedo over 0.95 that starts "
+        "`colour_steps` (C3VD's red: 1.0; the sinus, Hamlyn and cutting clips: 0.06-0.24).",
+    )
     fit_frames: int = Field(
         3,
         ge=0,

@@ -32,6 +32,7 @@ from endopipe.stages.nerf.auto_settings import (
     weigh_prior,
 )
 from endopipe.stages.nerf.bounds import PriorBounds
+from endopipe.stages.nerf.colour_phase import refit_if_pinned
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.data import FrameSet, holdout_split
 from endopipe.stages.nerf.evaluate import evaluate, plot_log
@@ -342,11 +343,12 @@ class Nerf(Stage):
 
     name = "nerf"
     needs = ("ingest", "poses", "centerline")
-    # 11: a moving camera with no lumen prior: warped grid, no n.l, exposure, albedo over
-    # time; 10: no field for a stereo pair alone; 9: the proposal grid, the depth rays rendered
-    # with the batch, exposures a channel, the fit measured; 8: the user's depth prior
-    # (relative) shapes the field; 7: stereo depth
-    version = 11
+    # 12: the albedo fitted again when a channel sat at its ceiling; 11: a moving camera with
+    # no lumen prior: warped grid, no n.l, exposure, albedo over time; 10: no field for a
+    # stereo pair alone; 9: the proposal grid, the depth rays rendered with the batch,
+    # exposures a channel, the fit measured; 8: the user's depth prior (relative) shapes the
+    # field; 7: stereo depth
+    version = 12
     Config = NerfConfig
     Summary = NerfSummary
     View = NerfView
@@ -390,6 +392,7 @@ class Nerf(Stage):
                 "result depends on the machine's speed and load"
             )
         trainer.save_checkpoint()  # a crash while evaluating resumes here, not steps back
+        colour = refit_if_pinned(trainer, ctx.log, ctx.progress)
         held_refined = trainer.refine_heldout([run.pos[i] for i in run.held_ids])
         c2w_used = trainer.world_poses(run.c2w)  # refined (world frame) when refinement ran
         pose_summary = record(
@@ -455,6 +458,7 @@ class Nerf(Stage):
             geometry=run.cfg.field.geometry,
             time_nodes=run.cfg.field.time_nodes if run.cfg.field.dynamic is True else None,
             depth_supervised=trainer.depth_supervised,
+            colour_refit=colour,
         )
 
 

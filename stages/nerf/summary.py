@@ -32,6 +32,20 @@ class PoseRefineRecord(Movement):
     heldout: Movement | None = None
 
 
+class ColourRefit(BaseModel):
+    """Whether a colour channel's albedo sat at its ceiling after training, and the steps that
+    then fitted the albedo again with the geometry fixed (colour_phase.py)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    ceiling: list[float]  # R, G, B: share of a draw of training rays with the albedo over 0.95
+    asked: list[float] | None = None  # ... the median albedo its pixels ask, in ceilings
+    light_factor: float | None = None  # the light's gain multiplied by this for the refit
+    steps: int = 0  # the albedo's steps (0: no channel was pinned)
+    seconds: float = 0.0
+    ceiling_after: list[float] | None = None  # ... the same draw after them
+
+
 class NerfDepthScores(BaseModel):
     """The held-out frames' depth against the ground truth (metric protocols only)."""
 
@@ -68,5 +82,7 @@ class NerfSummary(Summary):
     #: whether measured depth trained the field (SfM points, stereo, given depth, a depth prior):
     #: its expected depth is then what those rays fit (depth.field_depth auto); None: not recorded
     depth_supervised: bool | None = None
+    #: the albedo's ceiling measured after training, and its refit (None: not measured)
+    colour_refit: ColourRefit | None = None
     #: why no field was trained (a stereo pair alone); None: trained
     skipped: str | None = None

@@ -288,10 +288,7 @@ class Trainer:
         b = self.sampler.sample()
         o, d = self.frames.rays(b.frame, b.u, b.v)
         fixed = self.pixel_bounds if not self.frames.refining else None
-        if fixed is not None:
-            near, far = fixed.sampling(b.frame, b.u, b.v)
-        else:
-            near, far, _ = self.pb.bounds(o, d, self.pb.margin)
+        near, far = self.ray_bounds(o, d, b)
         warm = cfg.shading.normal_warmup
         mix = 1.0 if warm <= 0 else min(1.0, progress / warm)
         patches = b.n_patches * b.patch * b.patch
@@ -406,6 +403,15 @@ class Trainer:
             vals["pose_deg"] = delta[:, :3].norm(dim=-1).mean() * (180.0 / math.pi)
             vals["pose_move"] = delta[:, 3:].norm(dim=-1).mean() * self.box.scale
         return vals
+
+    def ray_bounds(self, o: torch.Tensor, d: torch.Tensor, b) -> tuple[torch.Tensor, torch.Tensor]:
+        """A batch's near and far bounds: each pixel's, found once, while the poses stay as
+        given; else from the prior along the rays as they are now."""
+        fixed = self.pixel_bounds if not self.frames.refining else None
+        if fixed is not None:
+            return fixed.sampling(b.frame, b.u, b.v)
+        near, far, _ = self.pb.bounds(o, d, self.pb.margin)
+        return near, far
 
     def _refresh_proposal(self, everything: bool) -> None:
         """Refresh the proposal grid: all of it at the start and when the field's parameters

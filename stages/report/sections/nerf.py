@@ -3,6 +3,7 @@ depth of the held-out frames."""
 
 from __future__ import annotations
 
+from endopipe.stages.nerf.summary import ColourRefit
 from endopipe.stages.report.images import file_image_uri
 from endopipe.stages.report.kit import render
 from endopipe.stages.report.load import CaseData
@@ -43,7 +44,22 @@ def section_nerf(data: CaseData, info: ReportInfo) -> str | None:
         render_rgb_ms=nm.render_rgb_ms if nm is not None else None,
         psnr=psnr,
         show_psnr=psnr is not None,
+        refit=refit_line(s.colour_refit) if s is not None else None,
         depth=score_table(depth.median_scaled, depth.sequence_scaled, units=data.units)
         if depth is not None
         else None,
+    )
+
+
+def refit_line(refit: ColourRefit | None) -> str | None:
+    """What the albedo's refit did, in one line (nerf/colour_phase.py); None when it did not run."""
+    if refit is None or not refit.steps:
+        return None
+    c = max(range(3), key=refit.ceiling.__getitem__)
+    return (
+        f"the {('red', 'green', 'blue')[c]} channel's albedo sat at its ceiling on "
+        f"{refit.ceiling[c]:.0%} of the training rays (its brightness all shading, the cue the "
+        f"depth rests on): {refit.steps} steps then fitted the albedo alone with the geometry "
+        f"fixed and the light x{refit.light_factor or 0:.2f}, so the depth is the geometry's "
+        "as trained and the renders are the images'"
     )

@@ -1,0 +1,151 @@
+"""The albedo fitted again with the geometry fixed, when a colour channel's albedo sat at its
+ceiling after training.
+
+Why: the near light explains a pixel's brightness by its distance and tilt, the albedo by the
+rest. On footage from a red scope (the C3VD colon) the red channel's albedo ends training at the
+sigmoid's ceiling on every pixel: red is all shading. That is the shading cue the depth rests on
+(with the red albedo free from the start the training fit rose 6 dB and the depth ranked 0.92
+instead of 0.97: docs/results.md, "Real footage"), but it leaves the field unable to render
+what it saw (a training fit of 23 dB, dark blotches down the lumen). So the geometry trains as
+it does, and then the albedo alone is fitted again under a light bright enough that the pinned
+channel's pixels ask for about half its ceiling: the density, the poses and the exposures stay as
+trained, so the depth is the same to the bit, and the renders are the images'.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import torch
+
+from endopipe.stages.nerf.data import RaySampler
+from endopipe.stages.nerf.summary import ColourRefit
+
+#: An albedo over this is at the sigmoid's ceiling (its gradient nearly gone).
+CEILING = 0.95
+#: Rays drawn from the training frames to measure it.
+PROBE_RAYS = 4096
+#: The colour channels, for the log.
+CHANNELS = ("red", "green", "blue")
+#: A pixel this bright or brighter is saturated: it asks for no particular albedo.
+SATURATED = 0.98
+#: The refit's learning rates, in the schedule's first ones: the decoder's output for a pinned
+#: channel starts deep in the sigmoid's saturation (C3VD: at 1x, 600 steps left red at the
+#: ceiling and the render 4 dB worse; at 10x, held-out 28.8 dB from 24.1).
+REFIT_LR = 10.0
+#: While the albedo is fitted again, the light is made bright enough that the pinned channel's
+#: median pixel asks for this albedo.
+ROOM = 0.5
+
+
+def can_refit(model) -> bool:
+    """Only a grid field with a separate albedo grid and colour decoder (TensoRF's) is split so."""
+    return all(hasattr(model.field, a) for a in ("app_grid", "basis", "color"))
+
+
+@torch.no_grad()
+def albedo_probe(trainer, seed: int = 0) -> tuple[list[float], list[float]]:
+    """Per colour channel, over a draw of training rays (opaque, usable): the share whose albedo,
+    composited and divided by the opacity, is over CEILING; and over those of them whose pixel
+    is not saturated, the median albedo the pixel asks for in units of that albedo (its value
+    over the render's, linearised by the field's gamma): how much brighter the light must be to
+    leave the channel room. Its own generator: the trainer's draws stay as they were."""
+    gen = torch.Generator(device=trainer.device).manual_seed(seed)
+    sampler = RaySampler(trainer.frames, trainer.train_pos, PROBE_RAYS, 2, 0.0, gen)
+    b = sampler.sample()
+    o, d = trainer.frames.rays(b.frame, b.u, b.v)
+    near, far = trainer.ray_bounds(o, d, b)
+    model = trainer.model
+    was_training = model.training
+    model.eval()
+    try:
+        out = model.render_rays(o, d, near, far, frame=b.frame, colour=True)
+    finally:
+        model.train(was_training)
+    opacity = out["opacity"]
+    seen = b.valid & (opacity > 0.5)
+    if not seen.any():
+        return [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]
+    albedo = out["albedo"][seen] / opacity[seen, None]
+    asks = (b.rgb[seen] / out["rgb"][seen].clamp_min(1e-4)) ** float(model.gamma())
+    shares, needs = [], []
+    for c in range(3):
+        at = albedo[:, c] > CEILING
+        shares.append(round(float(at.float().mean()), 4))
+        fair = at & (b.rgb[seen][:, c] < SATURATED)
+        needs.append(round(float(asks[fair, c].median()), 3) if fair.any() else 1.0)
+    return shares, needs
+
+
+def albedo_at_ceiling(trainer) -> list[float]:
+    """Per colour channel, the share of the probe's rays with the albedo at its ceiling."""
+    return albedo_probe(trainer)[0]
+
+
+def refit_if_pinned(trainer, log, progress) -> ColourRefit | None:
+    """Measure the albedo's ceiling after training and, when a channel sits there on more than
+    `train.colour_ceiling` of the rays, fit the albedo again (`train.colour_steps`); `progress`
+    is the stage's progress bar (a context manager giving `advance`). None: not measured (off,
+    or a field that keeps no separate albedo)."""
+    tc = trainer.cfg.train
+    if tc.colour_steps <= 0 or not can_refit(trainer.model):
+        return None
+    share, asks = albedo_probe(trainer)
+    pinned = max(range(3), key=share.__getitem__)
+    if share[pinned] <= tc.colour_ceiling:
+        return ColourRefit(ceiling=share)
+    brighter = max(asks[pinned], 1.0) / ROOM
+    log(
+        f"the {CHANNELS[pinned]} channel's albedo sat at its ceiling on {share[pinned]:.0%} of the "
+        f"training rays (its brightness all shading; its pixels ask for {asks[pinned]:.2f} of "
+        f"it): {tc.colour_steps} steps fit the albedo again with the geometry fixed, the light "
+        f"x{brighter:.2f} (nerf.train.colour_steps)"
+    )
+    with progress("albedo", total=tc.colour_steps) as advance:
+        seconds = refit_albedo(trainer, tc.colour_steps, brighter, advance)
+    return ColourRefit(
+        ceiling=share,
+        asked=asks,
+        light_factor=round(brighter, 3),
+        steps=tc.colour_steps,
+        seconds=round(seconds, 1),
+        ceiling_after=albedo_at_ceiling(trainer),
+    )
+
+
+def refit_albedo(trainer, steps: int, brighter: float, advance=None) -> float:
+    """`steps` training steps that move only the albedo grid, the colour decoder and the ambient
+    light, under the light's gain times `brighter` (fixed), at REFIT_LR times the schedule's
+    first learning rates; the trainer's step count and optimiser are as they were after.
+    Returns the seconds."""
+    model, tc = trainer.model, trainer.cfg.train
+    field = model.field
+    grid = list(field.app_grid.parameters())
+    decoder = [*field.basis.parameters(), *field.color.parameters()]
+    free = {id(p) for p in (*grid, *decoder, model.ambient_raw)}
+    trained = {p: p.requires_grad for p in model.parameters()}
+    for p in model.parameters():
+        p.requires_grad_(id(p) in free)
+    with torch.no_grad():
+        model.log_gain += math.log(brighter)
+    decay = tc.lr_decay**trainer.progress  # what the trainer's schedule multiplies in
+    groups = [
+        {"params": grid, "lr": REFIT_LR * tc.lr_grid, "name": "grid"},
+        {"params": [*decoder, model.ambient_raw], "lr": REFIT_LR * tc.lr_mlp, "name": "mlp"},
+    ]
+    for g in groups:
+        g["base_lr"] = g["lr"] / decay
+    optimiser, step_i = trainer.opt, trainer.step_i
+    trainer.opt = torch.optim.Adam(groups, betas=(0.9, 0.99))
+    t0 = time.perf_counter()
+    try:
+        for _ in range(steps):
+            trainer.step()
+            if advance is not None:
+                advance(1)
+    finally:
+        trainer.opt, trainer.step_i = optimiser, step_i
+        for p, on in trained.items():
+            p.requires_grad_(on)
+    return time.perf_counter() - t0
