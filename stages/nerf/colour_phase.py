@@ -32,7 +32,7 @@ CHANNELS = ("red", "green", "blue")
 SATURATED = 0.98
 #: The refit's learning rates, in the schedule's first ones: the decoder's output for a pinned
 #: channel starts deep in the sigmoid's saturation (C3VD: at 1x, 600 steps left red at the
-#: ceiling and the render 4 dB worse; at 10x, held-out 28.8 dB from 24.1).
+#: ceiling and the render 4 dB worse; at 10x, held-out 28.4 dB from 24.1).
 REFIT_LR = 10.0
 #: While the albedo is fitted again, the light is made bright enough that the pinned channel's
 #: median pixel asks for this albedo.

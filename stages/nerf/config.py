@@ -209,7 +209,7 @@ class TrainConfig(ConfigSection):
         "at its ceiling on more than `colour_ceiling` of the training rays (that channel all "
         "shading: the field could not render what it saw; the depth stays the same to the bit). "
         "C3VD preview: held-out PSNR 28.4 dB against 24.1, the depth the same, in about 100 s "
-        "more on one torch thread. 0: never.",
+        "more on one torch thread (not counted in time_budget_s). 0: never.",
     )
     colour_ceiling: float = Field(
         0.5,
