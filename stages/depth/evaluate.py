@@ -14,8 +14,7 @@ from endopipe.stages.ingest.view import IngestView
 from endopipe.stages.io.ground_truth import GroundTruthSource, depth_of_frame
 from endopipe.stages.metrics.baselines import (
     brightness_guess,
-    neighbour_average,
-    neighbour_frames,
+    neighbour_guesses,
     radial_guess,
 )
 from endopipe.stages.metrics.depth import (
@@ -167,16 +166,17 @@ def neighbour_scores(
     frames before and after that were trained on), on the same pixels as ours, the exposure
     fitted to the frame as ours is (`fit_exposure`)."""
     order = [f.index for f in ingest.frames]
-    rows = []
-    for i in held:
-        near = neighbour_frames(i, order, set(held))
-        if not near:
-            continue
-        guess = neighbour_average([ingest.image(j).astype(np.float32) / 255.0 for j in near])
-        frame = ingest.image(i).astype(np.float32) / 255.0
-        if fit_exposure:
-            guess = exposure_matched(guess, frame, ingest.mask(i) > 127)[0]
-        rows.append(image_metrics(guess, frame, ingest.mask(i) > 127))
+    rows = [
+        image_metrics(guess, frame, m)
+        for frame, guess, m in neighbour_guesses(
+            lambda i: ingest.image(i).astype(np.float32) / 255.0,
+            lambda i: ingest.mask(i) > 127,
+            order,
+            held,
+            set(held),
+            fit_exposure,
+        )
+    ]
     if not rows:
         return {}
     return {k: float(np.mean([r[k] for r in rows])) for k in ("psnr", "ssim")}

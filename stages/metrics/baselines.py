@@ -9,8 +9,12 @@ unknown scale, and for a relative ground truth the shift as well).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+
 import cv2
 import numpy as np
+
+from endopipe.stages.metrics.exposure import exposure_matched
 
 #: The names the guesses are stored under in metrics.json (`baselines`), in display order.
 GUESSES = ("radial", "brightness")
@@ -63,3 +67,26 @@ def neighbour_average(images: list[np.ndarray]) -> np.ndarray:
     """A held-out frame predicted by averaging its neighbours (the deformable-scene field's
     floor: on a still camera it is hard to beat, and it knows nothing of the scene's shape)."""
     return np.mean(np.stack([np.asarray(x, np.float32) for x in images]), axis=0)
+
+
+def neighbour_guesses(
+    image: Callable[[int], np.ndarray],
+    scored: Callable[[int], np.ndarray],
+    order: list[int],
+    held: list[int],
+    skip: set[int],
+    fit_exposure: bool = False,
+) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """(frame, its neighbour average, its scored pixels) for each held-out frame with a trained
+    neighbour (`neighbour_frames`); `image(i)` a frame in [0, 1], `scored(i)` its pixels to
+    score. With `fit_exposure` the guess's exposure is fitted to the frame as a field's render's
+    is (metrics/exposure.py)."""
+    for i in held:
+        near = neighbour_frames(i, order, skip)
+        if not near:
+            continue
+        frame, pixels = image(i), scored(i)
+        guess = neighbour_average([image(j) for j in near])
+        if fit_exposure:
+            guess = exposure_matched(guess, frame, pixels)[0]
+        yield frame, guess, pixels

@@ -20,14 +20,12 @@ import time
 import torch
 
 from endopipe.stages.nerf.data import RaySampler
-from endopipe.stages.nerf.summary import ColourRefit
+from endopipe.stages.nerf.summary import CHANNELS, ColourRefit
 
 #: An albedo over this is at the sigmoid's ceiling (its gradient nearly gone).
 CEILING = 0.95
 #: Rays drawn from the training frames to measure it.
 PROBE_RAYS = 4096
-#: The colour channels, for the log.
-CHANNELS = ("red", "green", "blue")
 #: A pixel this bright or brighter is saturated: it asks for no particular albedo.
 SATURATED = 0.98
 #: The refit's learning rates, in the schedule's first ones: the decoder's output for a pinned
@@ -78,11 +76,6 @@ def albedo_probe(trainer, seed: int = 0) -> tuple[list[float], list[float]]:
     return shares, needs
 
 
-def albedo_at_ceiling(trainer) -> list[float]:
-    """Per colour channel, the share of the probe's rays with the albedo at its ceiling."""
-    return albedo_probe(trainer)[0]
-
-
 def refit_if_pinned(trainer, log, progress) -> ColourRefit | None:
     """Measure the albedo's ceiling after training and, when a channel sits there on more than
     `train.colour_ceiling` of the rays, fit the albedo again (`train.colour_steps`); `progress`
@@ -110,7 +103,7 @@ def refit_if_pinned(trainer, log, progress) -> ColourRefit | None:
         light_factor=round(brighter, 3),
         steps=tc.colour_steps,
         seconds=round(seconds, 1),
-        ceiling_after=albedo_at_ceiling(trainer),
+        ceiling_after=albedo_probe(trainer)[0],
     )
 
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from endopipe.stages.camera import lens_valid_mask
 from endopipe.stages.io.ground_truth import depth_of_frame
-from endopipe.stages.metrics.baselines import neighbour_average, neighbour_frames
+from endopipe.stages.metrics.baselines import neighbour_guesses
 from endopipe.stages.metrics.depth import depth_sequence_metrics
 from endopipe.stages.metrics.exposure import exposure_matched
 from endopipe.stages.nerf import losses
@@ -38,9 +38,12 @@ def evaluate(
     pos = {i: p for p, i in enumerate(ids)}
     fits_exposure = model.cfg.shading.exposure is True
 
+    def usable(i: int) -> np.ndarray:
+        return (ingest.mask(i) > 127) & lens_valid
+
     def scored(i: int, rgb: np.ndarray) -> tuple[np.ndarray, float]:
         img = ingest.image(i).astype(np.float32) / 255.0
-        m = (ingest.mask(i) > 127) & lens_valid
+        m = usable(i)
         return img, float(((rgb - img) ** 2).mean(-1)[m].mean()) if m.any() else np.nan
 
     preds, gts, fovs, mses, times, previews, pairs = [], [], [], [], [], [], []
@@ -54,8 +57,7 @@ def evaluate(
         img, mse = scored(i, out["rgb"])
         if fits_exposure:
             interpolated.append(mse)
-            scored_px = (ingest.mask(i) > 127) & lens_valid
-            out["rgb"] = exposure_matched(out["rgb"], img, scored_px)[0]
+            out["rgb"] = exposure_matched(out["rgb"], img, usable(i))[0]
             mse = scored(i, out["rgb"])[1]
         save_rgb16(ctx.out / HELDOUT_RGB_DIR / f"{i:06d}.png", out["rgb"])  # the depth stage's
         mses.append(mse)
@@ -122,17 +124,17 @@ def neighbour_psnr(
     neighbours before and after (on the pixels the field's PSNR counts), its exposure fitted to
     the frame as the field's render's is (`fit_exposure`); None without any."""
     order = [f.index for f in ingest.frames]
-    vals = []
-    for i in held:
-        near = neighbour_frames(i, order, skip)
-        if not near:
-            continue
-        guess = neighbour_average([ingest.image(j).astype(np.float32) / 255.0 for j in near])
-        img = ingest.image(i).astype(np.float32) / 255.0
-        m = ingest.mask(i) > 127
-        if fit_exposure:
-            guess = exposure_matched(guess, img, m)[0]
-        vals.append(losses.psnr(float(((guess - img) ** 2).mean(-1)[m].mean())))
+    vals = [
+        losses.psnr(float(((guess - frame) ** 2).mean(-1)[m].mean()))
+        for frame, guess, m in neighbour_guesses(
+            lambda i: ingest.image(i).astype(np.float32) / 255.0,
+            lambda i: ingest.mask(i) > 127,
+            order,
+            held,
+            skip,
+            fit_exposure,
+        )
+    ]
     return round(float(np.mean(vals)), 3) if vals else None
 
 

@@ -32,6 +32,10 @@ class PoseRefineRecord(Movement):
     heldout: Movement | None = None
 
 
+#: The colour channels in the order the albedo's lists give them.
+CHANNELS = ("red", "green", "blue")
+
+
 class ColourRefit(BaseModel):
     """Whether a colour channel's albedo sat at its ceiling after training, and the steps that
     then fitted the albedo again with the geometry fixed (colour_phase.py)."""

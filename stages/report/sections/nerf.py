@@ -3,7 +3,7 @@ depth of the held-out frames."""
 
 from __future__ import annotations
 
-from endopipe.stages.nerf.summary import ColourRefit
+from endopipe.stages.nerf.summary import CHANNELS, ColourRefit
 from endopipe.stages.report.images import file_image_uri
 from endopipe.stages.report.kit import render
 from endopipe.stages.report.load import CaseData
@@ -57,7 +57,7 @@ def refit_line(refit: ColourRefit | None) -> str | None:
         return None
     c = max(range(3), key=refit.ceiling.__getitem__)
     return (
-        f"the {('red', 'green', 'blue')[c]} channel's albedo sat at its ceiling on "
+        f"the {CHANNELS[c]} channel's albedo sat at its ceiling on "
         f"{refit.ceiling[c]:.0%} of the training rays (its brightness all shading, the cue the "
         f"depth rests on): {refit.steps} steps then fitted the albedo alone with the geometry "
         f"fixed and the light x{refit.light_factor or 0:.2f}, so the depth is the geometry's "
