@@ -71,12 +71,13 @@ def test_every_stage_ran_and_wrote_its_contract(first_run: tuple[Path, float]) -
         summary["seen_again_share"] + summary["one_view_share"]
         <= 1.0 + 1e-9 - summary["unknown_share"]
     )
-    # The pixels other views confirm are no worse than the rest, within what CPUs differ by. On
-    # this tiny case the two are about equal: AbsRel 0.0805 against 0.0802 on one machine, 0.0807
-    # against 0.0716 on another of the same kind with the same code (1.13x); a views map that
-    # confirmed wrong depth would put them far apart.
+    # The pixels other views confirm meet the map's bound and cover most of it. Whether they
+    # beat the rest is not asked here: the rest is 2% of this tiny tube's pixels and swings with
+    # the machine (AbsRel 0.0805 against 0.0802 on one, 0.0807 against 0.0716 on another of the
+    # same kind, 0.0800 against 0.0539 on a third); tests/test_depth_support.py tells a right
+    # views map from a wrong one on a wall with its truth.
     by = depth["by_support"]
-    assert by["seen_again"]["abs_rel"] < 1.25 * by["rest"]["abs_rel"], by
+    assert by["seen_again"]["abs_rel"] < 0.2 and by["seen_again"]["coverage"] > 0.9, by
     mesh = json.loads((case / "06_mesh" / "metrics.json").read_text())
     assert mesh["evaluated"] and mesh["chamfer_pct_radius"] < 60, mesh
     report = (case / "07_report" / "report.html").read_text()

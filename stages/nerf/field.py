@@ -273,6 +273,12 @@ class TensorfField(RadianceField):
             loss = change if loss is None else loss + change
         return loss
 
+    def albedo_loss(self) -> torch.Tensor | None:
+        """The part of `extra_loss` that moves the albedo grid (its change over time)."""
+        if self.timed and self.cfg.change_weight > 0:
+            return self.cfg.change_weight * self.app_grid.change_penalty()
+        return None
+
 
 class HashgridField(RadianceField):
     """Multiresolution hash encoding, a density MLP and an albedo MLP (Instant-NGP layout)."""

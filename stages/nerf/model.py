@@ -331,18 +331,29 @@ class NerfModel(nn.Module):
         if sparse:
             keep = torch.nonzero(w.detach().reshape(-1) > WEIGHT_FLOOR)[:, 0]
             feat = self.field.features_at(x, prep, keep)
-            f = feat.new_zeros(b, feat.shape[1]).index_add(
-                0, keep // s, w.reshape(-1)[keep, None] * feat
-            )
-            out["albedo"] = (
-                self.field.decode(f / opacity.clamp_min(1e-6)[:, None], d) * opacity[:, None]
-            )
+            out["albedo"] = self.albedo_of(feat, w.reshape(-1)[keep], keep // s, opacity, d)
+            # what counted, for a pass that keeps the geometry fixed (colour_phase.py)
+            out["kept_points"], out["kept"] = x[keep], keep
         elif colour:
             f = torch.bmm(w[:, None, :], feat.view(b, s, -1))[:, 0]
             if deferred:
                 f = self.field.decode(f / opacity.clamp_min(1e-6)[:, None], d) * opacity[:, None]
             out["albedo"] = f
         return out
+
+    def albedo_of(
+        self,
+        feat: torch.Tensor,
+        w: torch.Tensor,
+        ray: torch.Tensor,
+        opacity: torch.Tensor,
+        d: torch.Tensor,
+    ) -> torch.Tensor:
+        """A deferred field's albedo of B rays (B, 3) from the features of their samples that
+        count (feat (K, C), their compositing weights w (K,) and rays `ray` (K,)): the features
+        composited a ray, decoded once."""
+        f = feat.new_zeros(len(opacity), feat.shape[1]).index_add(0, ray, w[:, None] * feat)
+        return self.field.decode(f / opacity.clamp_min(1e-6)[:, None], d) * opacity[:, None]
 
     # --- photometry ---------------------------------------------------------------------------
     def gamma(self) -> torch.Tensor | float:
