@@ -153,7 +153,7 @@ class _Pool:
                     for k, t in parts.items():
                         per_ray.setdefault(k, []).append(t)
                     kept = out["kept"]
-                    points.append(out["kept_points"])
+                    points.append(out["points"][kept])
                     weights.append(out["weights"].reshape(-1)[kept])
                     of_ray.append(kept // out["t"].shape[1] + drawn)
                     drawn += len(b.frame)

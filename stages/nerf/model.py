@@ -333,7 +333,7 @@ class NerfModel(nn.Module):
             feat = self.field.features_at(x, prep, keep)
             out["albedo"] = self.albedo_of(feat, w.reshape(-1)[keep], keep // s, opacity, d)
             # what counted, for a pass that keeps the geometry fixed (colour_phase.py)
-            out["kept_points"], out["kept"] = x[keep], keep
+            out["points"], out["kept"] = x, keep
         elif colour:
             f = torch.bmm(w[:, None, :], feat.view(b, s, -1))[:, 0]
             if deferred:
