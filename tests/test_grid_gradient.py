@@ -1,5 +1,6 @@
-"""The grid tables' gradient (stages/nerf/scatter_kernel.py): the same sums as torch's own
-autograd of the same interpolation, and to the bit whatever the thread count."""
+"""The grids' compiled loops (stages/nerf/grid_kernels.py): the tables' gradient gives the same
+sums as torch's own autograd of the same interpolation, to the bit whatever the thread count; a
+read without a gradient gives what the gathers give."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import torch
 import torch.nn.functional as F
 
 from endopipe.stages.nerf.encodings import VMGrid, gather_interp
-from endopipe.stages.nerf.scatter_kernel import add_weighted_corners
+from endopipe.stages.nerf.grid_kernels import add_weighted_corners
 
 
 def _points(n: int, rows: int, k: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -71,3 +72,20 @@ def test_a_vm_grid_trains_through_it() -> None:
         loss.backward()
         opt.step()
     assert loss.item() < 0.02 * first, (loss.item(), first)
+
+
+def test_a_read_without_gradient_is_the_gathers_read() -> None:
+    """The compiled read (no gradient wanted) gives what the gathers give, points outside the
+    box included (held at its border), and the field's density through it is the same."""
+    torch.manual_seed(0)
+    grid = VMGrid((50, 40, 30), 8)
+    x = torch.rand(20000, 3) * 2.4 - 1.2
+    with torch.no_grad():
+        fused = grid(x)
+        gathered = grid(x, grid.prepare(x))
+    assert torch.allclose(fused, gathered, atol=1e-6, rtol=1e-5)
+    assert fused.abs().max() > 1e-3
+    # with a gradient wanted the read goes through the gathers (and trains: above)
+    assert grid.reads_fused(x) is False
+    with torch.no_grad():
+        assert grid.reads_fused(x) is True

@@ -3,7 +3,7 @@
 All take grid coordinates in [-1, 1]^3 (the scene box, see `scene.py`). The grid encodings share
 one interpolation kernel, `gather_interp`: a weighted sum of K table rows per point. Its forward is
 `F.embedding_bag` (rows are channels-last, so one point reads contiguous memory) and its backward
-an accumulating scatter into the table's gradient (a compiled loop on a CPU, scatter_kernel.py):
+an accumulating scatter into the table's gradient (a compiled loop on a CPU, grid_kernels.py):
 the sample positions never need gradients here (normals come from finite differences), which keeps
 both passes cheap on a CPU.
 """
@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from endopipe.stages.nerf.scatter_kernel import add_weighted_corners
+from endopipe.stages.nerf.grid_kernels import add_weighted_corners, reads_fused, vm_read
 
 
 class _GatherInterp(torch.autograd.Function):
@@ -48,7 +48,7 @@ class _GatherInterp(torch.autograd.Function):
         else:
             g = torch.zeros_like(table, dtype=grad.dtype)
         if g.device.type == "cpu" and g.is_contiguous():
-            add_weighted_corners(g, idx, w, grad)  # no sort (scatter_kernel.py)
+            add_weighted_corners(g, idx, w, grad)  # no sort (grid_kernels.py)
         else:  # one corner at a time: contiguous products, no (N, K, C) temporary
             for k in range(idx.shape[1]):
                 g.index_add_(0, idx[:, k], grad * w[:, k : k + 1])
@@ -143,9 +143,15 @@ class VMGrid(nn.Module):
             out.append(a)
         return tuple(out)
 
+    def reads_fused(self, x: torch.Tensor) -> bool:
+        """Whether a read of x needs no set-up (no gradient wanted: grid_kernels.py)."""
+        return type(self) is VMGrid and reads_fused(x, self.planes, self.lines)
+
     def forward(
         self, x: torch.Tensor, prep: tuple[torch.Tensor, ...] | None = None
     ) -> torch.Tensor:
+        if prep is None and self.reads_fused(x):
+            return vm_read(x, self.planes, self.lines, self.res, self.PAIRS)
         pidx, pw, lidx, lw = prep if prep is not None else self.prepare(x)
         plane = gather_interp(self.planes, pidx, pw)
         line = gather_interp(self.lines, lidx, lw)

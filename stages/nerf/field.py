@@ -207,21 +207,24 @@ class TensorfField(RadianceField):
 
     def forward(self, x: torch.Tensor, d: torch.Tensor | None = None):
         sigma, prep = self.density_prepared(x)
-        f = self.app_grid(x, prep if self._shared else None)
+        f = self.app_grid(x, prep if self._shared else None)  # prep None: its own read
         if self.deferred:
             return sigma, f
         return sigma, self.decode(f, d)
 
-    def density_prepared(self, x: torch.Tensor) -> tuple[torch.Tensor, tuple]:
-        """sigma at grid points and the interpolation set-up, for `features_at` later."""
+    def density_prepared(self, x: torch.Tensor) -> tuple[torch.Tensor, tuple | None]:
+        """sigma at grid points and the interpolation set-up, for `features_at` later (None:
+        a read that wants no gradient needs none)."""
         at = self._where(x)
+        if self.density_grid.reads_fused(at):  # no gradient wanted: no set-up to share
+            return self._activate(self.density_grid(at).sum(-1), x), None
         prep = self.density_grid.prepare(at)  # both grids share their resolution
         return self._activate(self.density_grid(at, prep).sum(-1), x), prep
 
     def features_at(self, x: torch.Tensor, prep: tuple, keep: torch.Tensor) -> torch.Tensor:
         """The albedo features of the points `keep` (indices) of a prepared set (a deferred
         field's: composited, then decoded once a ray)."""
-        if not self._shared:  # the albedo's own set-up, with the time
+        if prep is None or not self._shared:  # its own read (with the time, or no set-up)
             return self.app_grid(x[keep])
         return self.app_grid(x[keep], self.app_grid.select(prep, keep, x.shape[0]))
 
