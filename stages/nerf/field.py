@@ -221,7 +221,7 @@ class TensorfField(RadianceField):
         prep = self.density_grid.prepare(at)  # both grids share their resolution
         return self._activate(self.density_grid(at, prep).sum(-1), x), prep
 
-    def features_at(self, x: torch.Tensor, prep: tuple, keep: torch.Tensor) -> torch.Tensor:
+    def features_at(self, x: torch.Tensor, prep: tuple | None, keep: torch.Tensor) -> torch.Tensor:
         """The albedo features of the points `keep` (indices) of a prepared set (a deferred
         field's: composited, then decoded once a ray)."""
         if prep is None or not self._shared:  # its own read (with the time, or no set-up)

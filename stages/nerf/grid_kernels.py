@@ -10,7 +10,7 @@ in order and adds each corner's weighted gradient row into the table. Threads sp
 rows, each thread adding only into its own share, so a row's sum is taken in the points' order
 whatever the number of threads: the result does not depend on the thread count or the load.
 
-The read without a gradient (a frame rendered, the depth baked, training's first sampling pass):
+The read without a gradient (a frame rendered, the refit's pool, the proposal grid's refresh):
 each point's plane and line interpolated and multiplied in one pass over the points, instead of
 torch's index and weight tensors (four a corner set, 3 x N rows each), two gathers and a product.
 
