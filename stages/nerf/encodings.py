@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from endopipe.stages.nerf.grid_kernels import add_weighted_corners, reads_fused, vm_read
+from endopipe.stages.nerf.grid_kernels import VM_PAIRS, add_weighted_corners, reads_fused, vm_read
 
 
 class _GatherInterp(torch.autograd.Function):
@@ -80,7 +80,7 @@ class VMGrid(nn.Module):
     are. Grids of the same resolution can share the interpolation set-up (`prepare`).
     """
 
-    PAIRS = ((0, 1, 2), (0, 2, 1), (1, 2, 0))
+    PAIRS = VM_PAIRS
 
     def __init__(self, res: tuple[int, int, int], channels: int, init_std: float = 0.1) -> None:
         super().__init__()
@@ -151,7 +151,8 @@ class VMGrid(nn.Module):
         self, x: torch.Tensor, prep: tuple[torch.Tensor, ...] | None = None
     ) -> torch.Tensor:
         if prep is None and self.reads_fused(x):
-            return vm_read(x, self.planes, self.lines, self.res, self.PAIRS)
+            _, _, _, res, _, poff, loff, _ = self._constants(x.device)
+            return vm_read(x, self.planes, self.lines, res, poff, loff)
         pidx, pw, lidx, lw = prep if prep is not None else self.prepare(x)
         plane = gather_interp(self.planes, pidx, pw)
         line = gather_interp(self.lines, lidx, lw)

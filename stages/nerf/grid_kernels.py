@@ -26,6 +26,17 @@ from numba import njit, prange
 
 numba.config.THREADING_LAYER = "workqueue"
 
+#: The VM grid's plane / line pairs, (plane axes a, b | line axis c): (x, y | z), (x, z | y),
+#: (y, z | x). The read's loop is written for these (VMGrid.PAIRS is this).
+VM_PAIRS = ((0, 1, 2), (0, 2, 1), (1, 2, 0))
+
+
+def _threads() -> int:
+    """Numba's threads for the next loop: torch's count (the stage's setting), at most numba's."""
+    threads = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
+    numba.set_num_threads(threads)
+    return threads
+
 
 @njit(parallel=True, cache=True, nogil=True)
 def _add_corners(
@@ -53,8 +64,7 @@ def add_weighted_corners(
     if idx.numel() == 0:
         return
     assert g.is_contiguous() and g.device.type == "cpu", "a contiguous CPU table"
-    threads = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
-    numba.set_num_threads(threads)
+    threads = _threads()
     _add_corners(
         g.detach().numpy(),
         idx.contiguous().numpy(),
@@ -89,7 +99,7 @@ def _vm_read(
         c0, f0 = _cell(x[i, 0], res[0])
         c1, f1 = _cell(x[i, 1], res[1])
         c2, f2 = _cell(x[i, 2], res[2])
-        for p in range(3):  # VMGrid.PAIRS: (x, y | z), (x, z | y), (y, z | x)
+        for p in range(3):  # VM_PAIRS: (x, y | z), (x, z | y), (y, z | x)
             if p == 0:
                 ca, fa, cb, fb, cc, fc, ra = c0, f0, c1, f1, c2, f2, res[0]
             elif p == 1:
@@ -127,31 +137,26 @@ def vm_read(
     x: torch.Tensor,
     planes: torch.Tensor,
     lines: torch.Tensor,
-    res: tuple[int, int, int],
-    pairs: tuple[tuple[int, int, int], ...],
+    res: torch.Tensor,
+    poff: torch.Tensor,
+    loff: torch.Tensor,
 ) -> torch.Tensor:
     """VMGrid's forward (N, 3 C) for points x (N, 3) in [-1, 1]^3 (beyond: at the border), the
     same sums as its gathers in the same order (to 1e-8: a gather's rounding), without their
-    set-up. `pairs`: VMGrid.PAIRS, which the loop has."""
-    assert tuple(map(tuple, pairs)) == ((0, 1, 2), (0, 2, 1), (1, 2, 0)), pairs
+    set-up. `res`, `poff`, `loff`: the grid's nodes an axis and its planes' and lines' first
+    rows, a pair each (int64, VM_PAIRS' order: VMGrid's cached constants)."""
     n, channels = x.shape[0], planes.shape[1]
     out = torch.empty(n, 3 * channels, dtype=torch.float32)
     if n == 0:
         return out
-    r = np.asarray(res, np.int64)
-    pr = np.asarray(pairs, np.int64)
-    sizes = r[pr[:, 0]] * r[pr[:, 1]]
-    poff = np.cumsum(sizes) - sizes
-    loff = np.cumsum(r[pr[:, 2]]) - r[pr[:, 2]]
-    threads = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
-    numba.set_num_threads(threads)
+    _threads()
     _vm_read(
         x.detach().contiguous().numpy(),
         planes.detach().contiguous().numpy(),
         lines.detach().contiguous().numpy(),
-        r,
-        poff,
-        loff,
+        res.numpy(),
+        poff.numpy(),
+        loff.numpy(),
         out.numpy(),
     )
     return out
