@@ -31,7 +31,7 @@ numba.config.THREADING_LAYER = "workqueue"
 VM_PAIRS = ((0, 1, 2), (0, 2, 1), (1, 2, 0))
 
 
-def _threads() -> int:
+def use_torch_threads() -> int:
     """Numba's threads for the next loop: torch's count (the stage's setting), at most numba's."""
     threads = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
     numba.set_num_threads(threads)
@@ -64,7 +64,7 @@ def add_weighted_corners(
     if idx.numel() == 0:
         return
     assert g.is_contiguous() and g.device.type == "cpu", "a contiguous CPU table"
-    threads = _threads()
+    threads = use_torch_threads()
     _add_corners(
         g.detach().numpy(),
         idx.contiguous().numpy(),
@@ -149,7 +149,7 @@ def vm_read(
     out = torch.empty(n, 3 * channels, dtype=torch.float32)
     if n == 0:
         return out
-    _threads()
+    use_torch_threads()
     _vm_read(
         x.detach().contiguous().numpy(),
         planes.detach().contiguous().numpy(),

@@ -30,8 +30,12 @@ class SparseDepth:
     def __len__(self) -> int:
         return int(self.frame.shape[0])
 
+    def draw(self, n: int, gen: torch.Generator) -> torch.Tensor:
+        """`n` rows drawn at random (with replacement)."""
+        return torch.randint(len(self), (n,), generator=gen, device=self.frame.device)
+
     def sample(self, n: int, gen: torch.Generator) -> tuple[torch.Tensor, ...]:
-        k = torch.randint(len(self), (n,), generator=gen, device=self.frame.device)
+        k = self.draw(n, gen)
         return self.frame[k], self.u[k], self.v[k], self.z[k]
 
 

@@ -17,7 +17,7 @@ import torch
 
 from endopipe.stages.camera import project
 from endopipe.stages.nerf import losses
-from endopipe.stages.nerf.bounds import PixelBounds, PriorBounds
+from endopipe.stages.nerf.bounds import PixelBounds, PriorBounds, target_bounds
 from endopipe.stages.nerf.config import NerfConfig
 from endopipe.stages.nerf.data import FrameSet, RaySampler, neighbours
 from endopipe.stages.nerf.model import NerfModel
@@ -157,6 +157,9 @@ class Trainer:
             self.model.field.slice_times_up_to(per_step)
         # Poses that stay as given: every training pixel's ray bounds once, not each step.
         self.pixel_bounds = None if refine_poses else PixelBounds(self.pb, frames, train)
+        self.sparse_bounds = None
+        if sparse is not None and len(sparse) and not refine_poses:
+            self.sparse_bounds = target_bounds(self.pb, frames, sparse)
         nb = neighbours(train)
         table = torch.arange(frames.n, device=self.device)
         for k, v in nb.items():
@@ -453,21 +456,20 @@ class Trainer:
     def _sparse_term(self) -> torch.Tensor:
         """Rendered depth against the SfM points' depth on a random draw of tracked pixels."""
         assert self.sparse is not None
-        frame, u, v, z = self.sparse.sample(self.cfg.loss.sparse_rays, self.gen)
-        return losses.sparse_depth(self._depth(*self.frames.rays(frame, u, v), frame), z)
+        sp, k = self.sparse, self.sparse.draw(self.cfg.loss.sparse_rays, self.gen)
+        o, d = self.frames.rays(sp.frame[k], sp.u[k], sp.v[k])
+        fixed = self.sparse_bounds if not self.frames.refining else None
+        bounds = None if fixed is None else (fixed[0][k], fixed[1][k])
+        return losses.sparse_depth(self._depth(o, d, sp.frame[k], bounds), sp.z[k])
 
-    def _depth(
-        self, o: torch.Tensor, d: torch.Tensor, frame: torch.Tensor | None = None
-    ) -> torch.Tensor:
+    def _depth(self, o, d, frame=None, bounds=None) -> torch.Tensor:
         """Rendered depth of extra rays (density only, jittered, with gradients), at their
-        frames' time (a dynamic field)."""
-        return self._render(o, d, frame)["depth"]
+        frames' time (a dynamic field); `bounds` (near, far) when known, else from the prior."""
+        return self._render(o, d, frame, bounds)["depth"]
 
-    def _render(
-        self, o: torch.Tensor, d: torch.Tensor, frame: torch.Tensor | None = None
-    ) -> dict[str, torch.Tensor]:
+    def _render(self, o, d, frame=None, bounds=None) -> dict[str, torch.Tensor]:
         """`_depth`'s render, with its samples' depths and weights."""
-        near, far, _ = self.pb.bounds(o, d, self.pb.margin)
+        near, far = bounds if bounds is not None else self.pb.bounds(o, d, self.pb.margin)[:2]
         return self.model.render_rays(
             o, d, near, far, frame=frame, jitter=True, gen=self.gen, colour=False, normals=False
         )
