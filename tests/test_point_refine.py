@@ -94,3 +94,36 @@ def test_a_point_on_a_flat_wall_stays() -> None:
     refined, moved = refine_points(obs, CAMERA, c2w, images)
     assert not moved.any()
     assert np.array_equal(refined.xyz, obs.xyz)
+
+
+def test_the_patch_through_a_fisheye_lies_where_its_nine_probes_put_it() -> None:
+    """The correlation projects nine pixels a patch and places the rest by the quadratic through
+    them: through C3VD's own fisheye, between two views of a plane, the other pixels lie within
+    a thousandth of a pixel of their own projections (3e-5 px measured; an affine map of the
+    centre and its axes' ends puts them 0.012-0.016 px off here, 0.35 px at worst on C3VD)."""
+    from endopipe.stages.camera.projection import project_camera, world_to_camera
+    from endopipe.stages.nerf.point_refine import HALF, _probes
+
+    fisheye = Camera(
+        width=320, height=320, fx=148.0, fy=148.0, cx=159.0, cy=159.5, model="fisheye",
+        dist=[0.1127, 0.0013, -0.0045, 0.0003],
+    )  # fmt: skip
+    grid = np.arange(-HALF, HALF + 1, dtype=np.float64)
+    offsets = np.stack(np.meshgrid(grid, grid), -1).reshape(-1, 2)
+    probes, weights = _probes(offsets)
+    other = np.eye(4)
+    other[:3, 3] = [0.3, -0.1, 0.2]
+    angle = np.radians(12)
+    other[:3, :3] = [
+        [np.cos(angle), 0, np.sin(angle)],
+        [0, 1, 0],
+        [-np.sin(angle), 0, np.cos(angle)],
+    ]
+    worst = 0.0
+    for centre in ([160.0, 160.0], [60.0, 90.0], [250.0, 270.0]):
+        pix = np.array(centre) + offsets
+        world = pixel_directions(fisheye, pix[:, 0], pix[:, 1]) * 2.0  # a plane at z = 2
+        uv, _ = project_camera(fisheye, world_to_camera(world, other))
+        assert np.abs(weights[probes] - np.eye(9)).max() < 1e-12  # exact at the probes
+        worst = max(worst, float(np.abs(weights @ uv[probes] - uv).max()))
+    assert worst < 1e-3, worst
