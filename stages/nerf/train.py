@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import psutil
 import torch
+from torch import Tensor
 
 from endopipe.stages.camera import project
 from endopipe.stages.nerf import losses
@@ -29,6 +30,8 @@ from endopipe.stages.nerf.sdf_start import start_grid
 from endopipe.stages.nerf.sparse_depth import SparseDepth
 
 CHECKPOINT = "checkpoint.pt"
+#: A batch's sampling bounds (near, far) when known beforehand; None: from the prior.
+Bounds = tuple[Tensor, Tensor] | None
 #: A pixel no brighter than this (display-encoded, its brightest channel) saw nothing: the
 #: opacity loss asks no surface of its ray.
 SEEN_LEVEL = 0.05
@@ -157,9 +160,8 @@ class Trainer:
             self.model.field.slice_times_up_to(per_step)
         # Poses that stay as given: every training pixel's ray bounds once, not each step.
         self.pixel_bounds = None if refine_poses else PixelBounds(self.pb, frames, train)
-        self.sparse_bounds = None
-        if sparse is not None and len(sparse) and not refine_poses:
-            self.sparse_bounds = target_bounds(self.pb, frames, sparse)
+        fixed = sparse is not None and len(sparse) > 0 and not refine_poses
+        self.sparse_bounds = target_bounds(self.pb, frames, sparse) if fixed else None
         nb = neighbours(train)
         table = torch.arange(frames.n, device=self.device)
         for k, v in nb.items():
@@ -462,12 +464,16 @@ class Trainer:
         bounds = None if fixed is None else (fixed[0][k], fixed[1][k])
         return losses.sparse_depth(self._depth(o, d, sp.frame[k], bounds), sp.z[k])
 
-    def _depth(self, o, d, frame=None, bounds=None) -> torch.Tensor:
+    def _depth(
+        self, o: Tensor, d: Tensor, frame: Tensor | None = None, bounds: Bounds = None
+    ) -> torch.Tensor:
         """Rendered depth of extra rays (density only, jittered, with gradients), at their
         frames' time (a dynamic field); `bounds` (near, far) when known, else from the prior."""
         return self._render(o, d, frame, bounds)["depth"]
 
-    def _render(self, o, d, frame=None, bounds=None) -> dict[str, torch.Tensor]:
+    def _render(
+        self, o: Tensor, d: Tensor, frame: Tensor | None = None, bounds: Bounds = None
+    ) -> dict[str, torch.Tensor]:
         """`_depth`'s render, with its samples' depths and weights."""
         near, far = bounds if bounds is not None else self.pb.bounds(o, d, self.pb.margin)[:2]
         return self.model.render_rays(
