@@ -21,6 +21,7 @@ from collections.abc import Mapping
 
 import numpy as np
 from numba import njit, prange
+from scipy.ndimage import map_coordinates
 
 from endopipe.stages.camera.model import Camera
 from endopipe.stages.camera.projection import project_camera, world_to_camera
@@ -222,12 +223,6 @@ def _correlate(
 
 
 def sample(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear samples of a (H, W) image at pixel coordinates (N, 2) inside it, OpenCV
-    convention (pixel centres at integers): what `_correlate` reads."""
-    h, w = img.shape
-    x0 = np.clip(np.floor(uv[:, 0]).astype(np.int64), 0, w - 2)
-    y0 = np.clip(np.floor(uv[:, 1]).astype(np.int64), 0, h - 2)
-    fx, fy = uv[:, 0] - x0, uv[:, 1] - y0
-    top = (1.0 - fx) * img[y0, x0] + fx * img[y0, x0 + 1]
-    bottom = (1.0 - fx) * img[y0 + 1, x0] + fx * img[y0 + 1, x0 + 1]
-    return (1.0 - fy) * top + fy * bottom
+    """Bilinear samples of a (H, W) image at pixel coordinates (N, 2), OpenCV convention: inside
+    the image, what `_correlate` reads."""
+    return map_coordinates(img, [uv[:, 1], uv[:, 0]], order=1, mode="nearest")
