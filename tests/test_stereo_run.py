@@ -22,7 +22,7 @@ STEPS += ["--set", "nerf.train.threads=1"]
 # (nerf.train.still_steps) is measured by the bench (docs/results.md).
 STEPS += ["--set", "nerf.train.still_steps=1"]
 # No albedo refit (it fits colour alone: the depth is the same to the bit; the tiny run and
-# test_colour_refit cover it): 40 s less.
+# test_colour_refit cover it), which took 40 s of this run.
 STEPS += ["--set", "nerf.train.colour_steps=0"]
 
 
