@@ -45,4 +45,10 @@ def detect_tools(rgb: np.ndarray, fov: np.ndarray, cfg: ToolsConfig) -> np.ndarr
     keep &= sums / counts >= cfg.min_blue_minus_red
     tool = keep[labels] & inside
     # A grey region filling most of the view is the scene (a grey phantom, a blank frame).
-    return tool if tool.sum() <= cfg.max_share * max(inside.sum(), 1) else np.zeros_like(tool)
+    if tool.sum() > cfg.max_share * max(inside.sum(), 1):
+        return np.zeros_like(tool)
+    grow = round(cfg.grow * min(h, w))
+    if grow > 0 and tool.any():  # the rim: the shaft's shaded edge, a thin jaw
+        disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
+        tool = (cv2.dilate(tool.astype(np.uint8), disk) > 0) & inside
+    return tool
