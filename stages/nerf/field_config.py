@@ -163,14 +163,16 @@ class FieldConfig(ConfigSection):
         description="Nodes along time of the space-time planes; 0: one per two frames, 4 to "
         "64 (a held-out frame then lies between nodes its neighbours fitted).",
     )
-    warp: bool | Literal["auto"] = Field(
+    warp: bool | Literal["auto", "frustum"] = Field(
         "auto",
         description="Warp the grid per axis: linear around the camera path, logarithmic "
         "beyond, so cells grow with the distance to the cameras. auto: warp only when the "
         "cameras saw their surface near their path (warp_min_inside of the SfM points in the "
         "linear core), or when no lumen prior bounds the scene (its reach past every point "
         "sized an unwarped grid too coarse); a scope that barely moves and looks far would "
-        "lose what it saw.",
+        "lose what it saw. frustum: the grid over the first camera's view, in image "
+        "coordinates and log depth (auto for a still camera: its planes lie on the pixels "
+        "at every depth; docs/method.md).",
     )
     warp_min_inside: float = Field(
         0.5,

@@ -10,12 +10,65 @@ grown by `core_pad` radii), logarithmic beyond it, so cells grow with the distan
 cameras. Depth error is judged relative to depth, and a tube seen down its length reaches far:
 the warp spends the grid where the cameras can resolve detail. Being per axis, it keeps the
 VM factorisation's planes and lines meaningful.
+
+A still camera's box can be its view's frustum instead (`Frustum`): grid coordinates are the
+image's (x / z, y / z) and the log of the depth, so the grid's planes over the image lie on its
+pixels at every depth. An axis-aligned box around a frustum spends most of its cells outside
+the view near the camera: EndoNeRF's cutting clip got 2-3 pixels a cell at its tissue's depth.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import torch
+
+#: The frustum's depth never reaches under this share of its far end (log z is unbounded).
+FRUSTUM_NEAREST = 1e-3
+
+
+class Frustum:
+    """One camera's view as the grid's box: q = (x / z, y / z, log z) of a point in the
+    camera's frame (p = rotation (x - centre), scene units), q's box [lo, hi]. Points behind
+    the camera or outside the box are outside the grid."""
+
+    def __init__(self, rotation, centre, lo, hi) -> None:
+        self.rotation = np.asarray(rotation, np.float64).reshape(3, 3)
+        self.centre = np.asarray(centre, np.float64).reshape(3)
+        self.lo = np.asarray(lo, np.float64).reshape(3)
+        self.hi = np.asarray(hi, np.float64).reshape(3)
+        self._t: dict[str, tuple[torch.Tensor, ...]] = {}
+
+    def state(self) -> dict:
+        return {k: getattr(self, k).tolist() for k in ("rotation", "centre", "lo", "hi")}
+
+    @property
+    def extent(self) -> np.ndarray:
+        """Nominal sizes for the grid's nodes an axis: the image's two spans, and the depth
+        given as many nodes as the image's wider side (log depth has no common unit with
+        them)."""
+        span = self.hi - self.lo
+        return np.array([span[0], span[1], max(span[0], span[1])])
+
+    def to_grid(self, x: torch.Tensor) -> torch.Tensor:
+        key = str(x.device)
+        if key not in self._t:
+            self._t[key] = tuple(
+                torch.tensor(v, dtype=torch.float32, device=x.device)
+                for v in (self.rotation, self.centre, self.lo, 2.0 / (self.hi - self.lo))
+            )
+        rot, c, lo, inv = self._t[key]
+        p = (x - c) @ rot.T
+        z = p[..., 2:3]
+        zs = z.clamp_min(FRUSTUM_NEAREST * float(np.exp(self.hi[2])))
+        q = torch.cat([p[..., :2] / zs, torch.log(zs)], -1)
+        g = (q - lo) * inv - 1.0
+        return torch.where(z > 0, g, torch.full_like(g, 2.0))  # behind the camera: outside
+
+    def grid_to_scene_np(self, g: np.ndarray) -> np.ndarray:
+        q = (np.asarray(g, np.float64) + 1.0) * (self.hi - self.lo) / 2.0 + self.lo
+        z = np.exp(q[..., 2:3])
+        p = np.concatenate([q[..., :2] * z, z], -1)
+        return p @ self.rotation + self.centre
 
 
 class SceneBox:
@@ -40,10 +93,14 @@ class SceneBox:
         self.core_hi = self.hi.copy() if core_hi is None else np.asarray(core_hi, np.float64)
         self.soft = float(soft)
         self._t: dict[str, tuple[torch.Tensor, ...]] = {}
+        #: A still camera's view as the grid's box (module docstring); lo / hi then bound
+        #: the frustum in the scene frame (the rays' slab bounds).
+        self.frustum: Frustum | None = None
 
     # --- persistence ------------------------------------------------------------------------
     def state(self) -> dict:
         return {
+            "frustum": None if self.frustum is None else self.frustum.state(),
             "centre": self.centre.tolist(),
             "rotation": self.rotation.tolist(),
             "scale": self.scale,
@@ -56,7 +113,7 @@ class SceneBox:
 
     @classmethod
     def from_state(cls, s: dict) -> SceneBox:
-        return cls(
+        box = cls(
             s["centre"],
             s["rotation"],
             s["scale"],
@@ -66,11 +123,17 @@ class SceneBox:
             s.get("core_hi"),
             s.get("soft", 1.0),
         )
+        if s.get("frustum"):
+            box.frustum = Frustum(**s["frustum"])
+        return box
 
     # --- transforms -------------------------------------------------------------------------
     @property
     def extent(self) -> np.ndarray:
-        """Size of the box in warped units (= scene units inside the core)."""
+        """Size of the box in warped units (= scene units inside the core); a frustum's
+        nominal sizes (`Frustum.extent`)."""
+        if self.frustum is not None:
+            return self.frustum.extent
         return self.warp_np(self.hi) - self.warp_np(self.lo)
 
     @property
@@ -100,6 +163,8 @@ class SceneBox:
 
     def grid_to_world_np(self, g: np.ndarray) -> np.ndarray:
         """[-1, 1]^3 grid coordinates (the field's, `to_grid`) -> world points."""
+        if self.frustum is not None:
+            return self.scene_to_world_np(self.frustum.grid_to_scene_np(g))
         glo, ghi = self.warp_np(self.lo), self.warp_np(self.hi)
         y = (np.asarray(g, np.float64) + 1.0) * (ghi - glo) / 2.0 + glo
         return self.scene_to_world_np(self.unwarp_np(y))
@@ -148,7 +213,10 @@ class SceneBox:
         return ((x - c) @ r) / self.scale
 
     def to_grid(self, x: torch.Tensor) -> torch.Tensor:
-        """Scene coordinates -> [-1, 1]^3 over the box (warped outside the core)."""
+        """Scene coordinates -> [-1, 1]^3 over the box (warped outside the core, or the
+        frustum's)."""
+        if self.frustum is not None:
+            return self.frustum.to_grid(x)
         _, _, glo, inv, a, b = self._tensors(x.device)
         k = self.soft
         y = torch.where(x > b, b + k * torch.log1p((x - b).clamp_min(0) / k), x)

@@ -41,7 +41,7 @@ from endopipe.stages.nerf.point_refine import refine_points
 from endopipe.stages.nerf.pose_refine import record, refinement_wanted
 from endopipe.stages.nerf.prior_depth import PriorRays, prior_depth_targets
 from endopipe.stages.nerf.render import pick_device, save_model
-from endopipe.stages.nerf.scene import SceneBox
+from endopipe.stages.nerf.scene import FRUSTUM_NEAREST, Frustum, SceneBox
 from endopipe.stages.nerf.shading_depth import only_shading_places_depth, shading_depth
 from endopipe.stages.nerf.sparse_depth import SparseDepth, sparse_depth_targets
 from endopipe.stages.nerf.stereo_depth import stereo_depth_targets
@@ -104,6 +104,8 @@ def fit_box(
             soft=f.warp_soft,
         )
 
+    if f.warp == "frustum":
+        return frustum_box(fit(False), c2w[0], camera, hw, prior, cfg, log)
     box = fit(f.warp is not False)
     share = box.core_share(points)
     if f.warp == "auto" and share is not None and share < f.warp_min_inside:
@@ -113,6 +115,32 @@ def fit_box(
             f"grid warp {'on' if box.warped else 'off'}: {share:.0%} of the SfM points lie "
             f"within {f.warp_core_pad:g} radii of the camera path's box"
         )
+    return box
+
+
+def frustum_box(box: SceneBox, c2w: np.ndarray, camera: Camera, hw, prior, cfg, log=None):
+    """`box` with its grid over the view of the camera at `c2w` (scene.Frustum): the image's
+    span of ray directions (a 5% margin a side, a stereo rig's other eye near it) and the
+    depths its rays are sampled over."""
+    h, w = hw
+    vv, uu = np.meshgrid(np.linspace(0, h - 1, 24), np.linspace(0, w - 1, 32), indexing="ij")
+    c2w_s = box.c2w_to_scene(c2w)
+    u, v = (torch.tensor(a.ravel(), dtype=torch.float32) for a in (uu, vv))
+    o, d = pixel_rays(camera, torch.tensor(c2w_s, dtype=torch.float32), u, v)
+    pb = PriorBounds(prior, box, cfg)
+    near, far, _ = pb.bounds(o, d, pb.margin, wall=True, past_points=True)
+    rot = c2w_s[:3, :3].T  # scene -> camera
+    dc = d.numpy().astype(np.float64) @ rot.T
+    uv = dc[:, :2] / dc[:, 2:3]
+    span = uv.max(0) - uv.min(0)
+    z_hi = float(far.max())
+    z_lo = max(float(near.min()), FRUSTUM_NEAREST * z_hi)
+    lo = np.array([*(uv.min(0) - 0.05 * span), np.log(z_lo) - 0.02])
+    hi = np.array([*(uv.max(0) + 0.05 * span), np.log(z_hi) + 0.02])
+    box.frustum = Frustum(rot, c2w_s[:3, 3], lo, hi)
+    if log is not None:
+        depths = f"{z_lo * box.scale:.3g}-{z_hi * box.scale:.3g}"
+        log(f"the grid over the view's frustum: depth {depths} (world units)")
     return box
 
 
