@@ -261,6 +261,38 @@ def test_grid_warp_auto_follows_where_the_sfm_points_lie():
     assert not fit_box(poses, k, (H, W), prior, cfg, wall(2, 13)).warped
 
 
+def test_a_still_cameras_grid_lies_over_its_view():
+    """warp: frustum (a still camera's auto): every sample of a pixel's ray reads the same
+    place of the grid's image planes, the image spans the grid's width and height, depth runs
+    along the third axis; the grid maps back to the world and is saved with
+    the model's box."""
+    k, prior = intrinsics(), tube_prior()
+    still = [tube_poses(1)[0]] * 5
+    cfg = tiny_config()
+    cfg.field.warp = "frustum"
+    box = fit_box(still, k, (H, W), prior, cfg)
+    assert box.frustum is not None and not box.warped
+    c2w = torch.tensor(box.c2w_to_scene(still[0]), dtype=torch.float32)
+    u = torch.tensor([0.0, 1.0, W / 2, W - 1.0])
+    v = torch.tensor([0.0, 0.0, H / 2, H - 1.0])
+    o, d = pixel_rays(k, c2w, u, v)
+    t = torch.linspace(0.5, 5.0, 7)
+    g = box.to_grid((o[:, None] + t[None, :, None] * d[:, None]).reshape(-1, 3)).view(4, 7, 3)
+    assert torch.allclose(g[..., :2], g[:, :1, :2].expand(-1, 7, -1), atol=1e-5)
+    assert (g[..., 2].diff(dim=1) > 0).all()  # depth along the grid's third axis
+    assert (g.abs() <= 1).all()  # the view's corners inside, with their margin
+    # the image spans the grid's width but for the 5% margins: its planes lie on the pixels
+    assert 0.85 < float(g[3, 0, 0] - g[0, 0, 0]) / 2 < 0.95
+    assert 0.85 < float(g[3, 0, 1] - g[0, 0, 1]) / 2 < 0.95
+    back = box.grid_to_world_np(g.reshape(-1, 3).numpy().astype(np.float64))
+    world = box.scene_to_world_np((o[:, None] + t[None, :, None] * d[:, None]).reshape(-1, 3))
+    assert np.allclose(back, world, atol=1e-4)
+    behind = box.to_grid(o[:1] - d[:1])  # behind the camera: outside the grid
+    assert (behind.abs() > 1).any()
+    again = SceneBox.from_state(box.state())
+    assert again.frustum is not None and np.allclose(again.extent, box.extent)
+
+
 def test_paper_preset_trains_with_coarse_and_fine_passes(tmp_path):
     from endopipe.pipeline.config import deep_merge, read_yaml, resolve_config_path
 
