@@ -264,8 +264,7 @@ def test_grid_warp_auto_follows_where_the_sfm_points_lie():
 def test_a_still_cameras_grid_lies_over_its_view():
     """warp: frustum (a still camera's auto): every sample of a pixel's ray reads the same
     place of the grid's image planes, the image spans the grid's width and height, depth runs
-    along the third axis; the grid maps back to the world and is saved with
-    the model's box."""
+    along the third axis; the grid maps back to the world and is saved with the model's box."""
     k, prior = intrinsics(), tube_prior()
     still = [tube_poses(1)[0]] * 5
     cfg = tiny_config()

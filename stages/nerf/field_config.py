@@ -171,8 +171,8 @@ class FieldConfig(ConfigSection):
         "linear core), or when no lumen prior bounds the scene (its reach past every point "
         "sized an unwarped grid too coarse); a scope that barely moves and looks far would "
         "lose what it saw. frustum: the grid over the first camera's view, in image "
-        "coordinates and log depth (auto for a still camera: its planes lie on the pixels "
-        "at every depth; docs/method.md).",
+        "coordinates and log depth (auto for a still camera over tissue that moves: its "
+        "planes lie on the pixels at every depth; docs/method.md).",
     )
     warp_min_inside: float = Field(
         0.5,
