@@ -78,8 +78,7 @@ def still_camera_settings(cfg: NerfConfig, poses, log) -> NerfConfig:
         # is the view's frustum (the cutting clip 32.92 dB against 32.20, the pulled wall
         # 40.24 against 37.99). A still rig over a still scene kept the box: its mesh came
         # out 7.05% of the radius off against 6.08 over the frustum (docs/results.md).
-        motion = poses.motion
-        moving = motion is not None and motion.scene == "moving"
+        moving = scene_moves(poses)
         frustum = cfg.field.dynamic is True or (cfg.field.dynamic == "auto" and moving)
         field = cfg.field.model_copy(update={"warp": "frustum" if frustum else False})
         cfg = cfg.model_copy(update={"field": field})
@@ -138,6 +137,11 @@ def free_scene_settings(cfg: NerfConfig, prior, poses, log) -> NerfConfig:
 STILL_FRAMES_PER_STEP = 8
 
 
+def scene_moves(poses) -> bool:
+    """Whether the poses stage found the scene moving (tissue under a still camera)."""
+    return poses.motion is not None and poses.motion.scene == "moving"
+
+
 def choose_dynamic(cfg: NerfConfig, poses, n_frames: int, log) -> NerfConfig:
     """field.dynamic auto: a field that changes with time where the poses stage found the scene
     moving under a still camera, the static field otherwise; the log says which and why.
@@ -146,7 +150,7 @@ def choose_dynamic(cfg: NerfConfig, poses, n_frames: int, log) -> NerfConfig:
     motion = poses.motion
     dynamic = cfg.field.dynamic
     if dynamic == "auto":
-        moving = motion is not None and motion.scene == "moving"
+        moving = scene_moves(poses)
         dynamic = moving
         why = (
             f"the footage is {motion.label}"
