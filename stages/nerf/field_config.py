@@ -174,6 +174,15 @@ class FieldConfig(ConfigSection):
         "coordinates and log depth (auto for a still camera over tissue that moves: its "
         "planes lie on the pixels at every depth; docs/method.md).",
     )
+    frustum_depth_nodes: float = Field(
+        0.25,
+        gt=0,
+        le=1,
+        description="The frustum grid's nodes along log depth, as a share of those along the "
+        "image's wider side: a still camera sees one surface a pixel, and fine depth cells "
+        "only enlarge the planes every step updates (the cutting clip at 0.25: held-out "
+        "33.05 dB against 32.92 at 1, training 242 s against 287).",
+    )
     warp_min_inside: float = Field(
         0.5,
         ge=0,

@@ -29,25 +29,27 @@ FRUSTUM_NEAREST = 1e-3
 class Frustum:
     """One camera's view as the grid's box: q = (x / z, y / z, log z) of a point in the
     camera's frame (p = rotation (x - centre), scene units), q's box [lo, hi]. Points behind
-    the camera or outside the box are outside the grid."""
+    the camera or outside the box are outside the grid. `depth_nodes`: the depth's nodes as a
+    share of the image's wider side's (log depth has no common unit with the image's)."""
 
-    def __init__(self, rotation, centre, lo, hi) -> None:
+    def __init__(self, rotation, centre, lo, hi, depth_nodes: float = 1.0) -> None:
         self.rotation = np.asarray(rotation, np.float64).reshape(3, 3)
         self.centre = np.asarray(centre, np.float64).reshape(3)
         self.lo = np.asarray(lo, np.float64).reshape(3)
         self.hi = np.asarray(hi, np.float64).reshape(3)
+        self.depth_nodes = float(depth_nodes)
         self._t: dict[str, tuple[torch.Tensor, ...]] = {}
 
     def state(self) -> dict:
-        return {k: getattr(self, k).tolist() for k in ("rotation", "centre", "lo", "hi")}
+        s = {k: getattr(self, k).tolist() for k in ("rotation", "centre", "lo", "hi")}
+        return {**s, "depth_nodes": self.depth_nodes}
 
     @property
     def extent(self) -> np.ndarray:
-        """Nominal sizes for the grid's nodes an axis: the image's two spans, and the depth
-        given as many nodes as the image's wider side (log depth has no common unit with
-        them)."""
+        """Nominal sizes for the grid's nodes an axis: the image's two spans, and the depth's
+        `depth_nodes` of the wider one."""
         span = self.hi - self.lo
-        return np.array([span[0], span[1], max(span[0], span[1])])
+        return np.array([span[0], span[1], self.depth_nodes * max(span[0], span[1])])
 
     def to_grid(self, x: torch.Tensor) -> torch.Tensor:
         key = str(x.device)

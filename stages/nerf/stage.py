@@ -137,7 +137,7 @@ def frustum_box(box: SceneBox, c2w: np.ndarray, camera: Camera, hw, prior, cfg, 
     z_lo = max(float(near.min()), FRUSTUM_NEAREST * z_hi)
     lo = np.array([*(uv.min(0) - 0.05 * span), np.log(z_lo) - 0.02])
     hi = np.array([*(uv.max(0) + 0.05 * span), np.log(z_hi) + 0.02])
-    box.frustum = Frustum(rot, c2w_s[:3, 3], lo, hi)
+    box.frustum = Frustum(rot, c2w_s[:3, 3], lo, hi, cfg.field.frustum_depth_nodes)
     if log is not None:
         depths = f"{z_lo * box.scale:.3g}-{z_hi * box.scale:.3g}"
         log(f"the grid over the view's frustum: depth {depths} (world units)")
