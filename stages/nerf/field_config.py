@@ -181,7 +181,7 @@ class FieldConfig(ConfigSection):
         description="The frustum grid's nodes along log depth, as a share of those along the "
         "image's wider side: a still camera sees one surface a pixel, and fine depth cells "
         "only enlarge the planes every step updates (the cutting clip at 0.25: held-out "
-        "33.05 dB against 32.92 at 1, training 242 s against 287).",
+        "33.05 dB against 32.92 at 1, a step 92 ms against 104).",
     )
     warp_min_inside: float = Field(
         0.5,
