@@ -288,8 +288,8 @@ def test_a_still_cameras_grid_lies_over_its_view():
     assert np.allclose(back, world, atol=1e-4)
     behind = box.to_grid(o[:1] - d[:1])  # behind the camera: outside the grid
     assert (behind.abs() > 1).any()
-    # depth has its share of the image's nodes, and a field saved before the share was one
-    # (no `depth_nodes` in its state) loads with its own grid's shape
+    # depth has its share of the image's nodes; a state without `depth_nodes` reads as a
+    # share of one, the grid's shape it was saved with
     span = box.frustum.hi - box.frustum.lo
     assert np.isclose(box.extent[2], cfg.field.frustum_depth_nodes * span[:2].max())
     again = SceneBox.from_state(box.state())
