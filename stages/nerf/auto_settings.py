@@ -78,8 +78,7 @@ def still_camera_settings(cfg: NerfConfig, poses, log) -> NerfConfig:
         # is the view's frustum (the cutting clip 32.92 dB against 32.20, the pulled wall
         # 40.24 against 37.99). A still rig over a still scene kept the box: its mesh came
         # out 7.05% of the radius off against 6.08 over the frustum (docs/results.md).
-        moving = scene_moves(poses)
-        frustum = cfg.field.dynamic is True or (cfg.field.dynamic == "auto" and moving)
+        frustum = field_is_dynamic(cfg, poses)
         field = cfg.field.model_copy(update={"warp": "frustum" if frustum else False})
         cfg = cfg.model_copy(update={"field": field})
         if frustum:
@@ -137,9 +136,12 @@ def free_scene_settings(cfg: NerfConfig, prior, poses, log) -> NerfConfig:
 STILL_FRAMES_PER_STEP = 8
 
 
-def scene_moves(poses) -> bool:
-    """Whether the poses stage found the scene moving (tissue under a still camera)."""
-    return poses.motion is not None and poses.motion.scene == "moving"
+def field_is_dynamic(cfg: NerfConfig, poses) -> bool:
+    """`field.dynamic` as resolved: as given, or (auto) where the poses stage found the scene
+    moving (tissue under a still camera)."""
+    if cfg.field.dynamic == "auto":
+        return poses.motion is not None and poses.motion.scene == "moving"
+    return cfg.field.dynamic is True
 
 
 def choose_dynamic(cfg: NerfConfig, poses, n_frames: int, log) -> NerfConfig:
@@ -148,23 +150,21 @@ def choose_dynamic(cfg: NerfConfig, poses, n_frames: int, log) -> NerfConfig:
     A dynamic field's frames are not one scene at different places, so the multi-frame depth
     consistency (which warps one frame's depth into another's) is off."""
     motion = poses.motion
-    dynamic = cfg.field.dynamic
-    if dynamic == "auto":
-        moving = scene_moves(poses)
-        dynamic = moving
+    dynamic = field_is_dynamic(cfg, poses)
+    if cfg.field.dynamic == "auto":
         why = (
             f"the footage is {motion.label}"
             if motion is not None
             else "the footage's motion was not judged (poses.motion.check off)"
         )
-        log(f"field auto: {'dynamic (space-time planes)' if moving else 'static'}: {why}")
+        log(f"field auto: {'dynamic (space-time planes)' if dynamic else 'static'}: {why}")
     nodes = cfg.field.time_nodes or int(np.clip(round(n_frames / 2), 4, 64))
     if cfg.train.frames_per_step == "auto":
-        per_step = STILL_FRAMES_PER_STEP if dynamic is True else 0
+        per_step = STILL_FRAMES_PER_STEP if dynamic else 0
         cfg = cfg.model_copy(
             update={"train": cfg.train.model_copy(update={"frames_per_step": per_step})}
         )
-    if dynamic is False:
+    if not dynamic:
         update: dict = {"dynamic": False}
         timed = cfg.field.appearance_time
         if timed == "auto":
