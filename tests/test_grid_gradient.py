@@ -8,7 +8,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from endopipe.stages.nerf.encodings import VMGrid, gather_interp
+from endopipe.stages.nerf.encodings import FUSED_TIMES, VMGrid, VMTimeGrid, gather_interp
 from endopipe.stages.nerf.grid_kernels import add_weighted_corners
 
 
@@ -89,3 +89,30 @@ def test_a_read_without_gradient_is_the_gathers_read() -> None:
     assert grid.reads_fused(x) is False
     with torch.no_grad():
         assert grid.reads_fused(x) is True
+
+
+def test_a_grid_over_time_reads_without_gradient_as_its_gathers_do() -> None:
+    """A grid over time read with no gradient wanted (a frame rendered at its time, a training
+    step's first pass at its frames' times) goes through the compiled read on its lines sliced
+    at those times, and gives the gathers' read of its lines and change; points at more times
+    than the slices are made for take the gathers."""
+    torch.manual_seed(0)
+    grid = VMTimeGrid((50, 40, 30), 8, 16)
+    with torch.no_grad():
+        grid.change.normal_()
+    x = torch.rand(20000, 3) * 2.4 - 1.2
+    one_time = torch.full((20000, 1), 0.37)
+    five_times = torch.randint(0, 5, (20000, 1)).float() / 2 - 1
+    many_times = torch.rand(20000, 1) * 2 - 1
+    for t in (one_time, five_times, many_times):
+        xt = torch.cat([x, t], 1)
+        with torch.no_grad():
+            assert grid.reads_fused(xt)
+            read = grid(xt)
+            gathered = grid(xt, grid.prepare(xt))
+        assert torch.allclose(read, gathered, atol=1e-6, rtol=1e-5)
+        assert read.abs().max() > 1e-2
+    with torch.no_grad():  # more times than FUSED_TIMES: the gathers
+        assert len(many_times.unique()) > FUSED_TIMES
+        assert grid._read_sliced(torch.cat([x, many_times], 1)) is None
+    assert not grid.reads_fused(xt)  # a gradient wanted: the gathers

@@ -91,11 +91,14 @@ def _vm_read(
     res: np.ndarray,
     poff: np.ndarray,
     loff: np.ndarray,
+    lshift: np.ndarray,
     out: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     one, zero = np.float32(1.0), np.float32(0.0)
     channels = planes.shape[1]
+    shifted = lshift.shape[0] > 0
     for i in prange(x.shape[0]):
+        shift = lshift[i] if shifted else 0
         c0, f0 = _cell(x[i, 0], res[0])
         c1, f1 = _cell(x[i, 1], res[1])
         c2, f2 = _cell(x[i, 2], res[2])
@@ -109,7 +112,7 @@ def _vm_read(
             ga, gb = one - fa, one - fb
             w0, w1, w2, w3 = ga * gb, fa * gb, ga * fb, fa * fb
             r0 = poff[p] + cb * ra + ca
-            l0 = loff[p] + cc
+            l0 = loff[p] + cc + shift
             lw0 = one - fc
             for ch in range(channels):
                 plane = zero
@@ -140,11 +143,14 @@ def vm_read(
     res: torch.Tensor,
     poff: torch.Tensor,
     loff: torch.Tensor,
+    lshift: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """VMGrid's forward (N, 3 C) for points x (N, 3) in [-1, 1]^3 (beyond: at the border), the
     same sums as its gathers in the same order (to 1e-8: a gather's rounding), without their
     set-up. `res`, `poff`, `loff`: the grid's nodes an axis and its planes' and lines' first
-    rows, a pair each (int64, VM_PAIRS' order: VMGrid's cached constants)."""
+    rows, a pair each (int64, VM_PAIRS' order: VMGrid's cached constants). `lshift` (N,)
+    int64: each point's lines start that many rows further (a grid over time's lines sliced
+    at several times, one slice after the other)."""
     n, channels = x.shape[0], planes.shape[1]
     out = torch.empty(n, 3 * channels, dtype=torch.float32)
     if n == 0:
@@ -157,6 +163,7 @@ def vm_read(
         res.numpy(),
         poff.numpy(),
         loff.numpy(),
+        np.zeros(0, np.int64) if lshift is None else lshift.contiguous().numpy(),
         out.numpy(),
     )
     return out
