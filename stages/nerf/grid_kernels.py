@@ -13,6 +13,7 @@ whatever the number of threads: the result does not depend on the thread count o
 The read without a gradient (a frame rendered, the refit's pool, the proposal grid's refresh):
 each point's plane and line interpolated and multiplied in one pass over the points, instead of
 torch's index and weight tensors (four a corner set, 3 x N rows each), two gathers and a product.
+A grid over time reads so too, each point in its lines sliced at its time.
 
 Numba's own thread pool (`workqueue`), not a second OpenMP runtime beside torch's.
 """
