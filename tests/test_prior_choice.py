@@ -260,8 +260,8 @@ def test_a_still_camera_trains_longer_and_a_moving_one_does_not() -> None:
     assert still_camera_settings(cfg, moving, lines.append).train.steps == cfg.train.steps
     assert not lines
     longer = still_camera_settings(cfg, still, lines.append)
-    assert longer.train.steps == round(2.0 * cfg.train.steps) == 3000
-    assert any("3000 steps" in line and "still camera" in line for line in lines)
+    assert longer.train.steps == round(4.0 * cfg.train.steps) == 6000
+    assert any("6000 steps" in line and "still camera" in line for line in lines)
     # the grid: unwarped over a still scene, over the view's frustum where tissue moves
     assert longer.field.warp is False
     pulled = SimpleNamespace(still=True, one_pair=False, motion=SimpleNamespace(scene="moving"))
