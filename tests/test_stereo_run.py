@@ -18,7 +18,7 @@ from tests.stereo_hamlyn import write_stereo_hamlyn
 
 STEPS = ["--set", "nerf.train.steps=400", "--set", "nerf.train.time_budget_s=null"]
 STEPS += ["--set", "nerf.train.threads=1"]
-# The bounds below were measured at these 400 steps; a still camera's default 2x of them
+# The bounds below were measured at these 400 steps; a still camera's default multiple of them
 # (nerf.train.still_steps) is measured by the bench (docs/results.md).
 STEPS += ["--set", "nerf.train.still_steps=1"]
 # No albedo refit (it fits colour alone: the depth is the same to the bit; the tiny run and

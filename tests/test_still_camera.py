@@ -22,7 +22,7 @@ from endopipe.synth import SynthConfig, generate_case
 
 STEPS = ["--set", "nerf.train.steps=400", "--set", "nerf.train.time_budget_s=null"]
 STEPS += ["--set", "nerf.train.threads=1", "--set", "report.include_mesh_viewer=false"]
-# The bounds below were measured at these 400 steps; a still camera's default 2x of them
+# The bounds below were measured at these 400 steps; a still camera's default multiple of them
 # (nerf.train.still_steps) is measured by the bench (docs/results.md).
 STEPS += ["--set", "nerf.train.still_steps=1"]
 
