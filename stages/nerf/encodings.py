@@ -198,6 +198,20 @@ class VMGrid(nn.Module):
 FUSED_TIMES = 64
 
 
+def point_times(t: torch.Tensor, most: int) -> tuple[torch.Tensor, torch.Tensor | None] | None:
+    """The distinct times of points at times `t` (N,) and each point's among them (None: all
+    at one), for reading a grid over time's lines sliced at each; None: no points, or more
+    than `most` times."""
+    if len(t) == 0:
+        return None
+    if bool((t == t[0]).all()):
+        return t[:1], None
+    if most < 2:
+        return None
+    times, which = torch.unique(t, return_inverse=True)
+    return (times, which) if len(times) <= most else None
+
+
 class VMTimeGrid(VMGrid):
     """HexPlane's space-time factorisation on the VM grid, as a static grid and a change:
     sum_m plane_m(u, v) * (line_m(w) + change_m(w, t)), the change a plane over (w, time) with
@@ -233,14 +247,13 @@ class VMTimeGrid(VMGrid):
         on the cutting clip, scripts/bench_nerf_step.py; the slice's backward grows with its
         times.)"""
         pidx, pw, lidx, lw = super().prepare(x[:, :3])
-        t = x[:, 3]
-        if x.shape[0] and bool((t == t[0]).all()):
-            return pidx, pw, lidx, lw, None, t[:1]
-        if x.shape[0] and self.slice_up_to > 1:
-            times, which = torch.unique(t, return_inverse=True)
-            if len(times) <= self.slice_up_to:
+        at = point_times(x[:, 3], self.slice_up_to)
+        if at is not None:
+            times, which = at
+            if which is not None:
                 shift = which.repeat_interleave(len(self.PAIRS)) * self._line_rows()
-                return pidx, pw, lidx + shift[:, None], lw, None, times
+                lidx = lidx + shift[:, None]
+            return pidx, pw, lidx, lw, None, times
         _, _, c, res, _, _, loff, _ = self._constants(x.device)
         with torch.no_grad():
             p = ((x[:, :3] + 1.0) * (0.5 * (res - 1))).clamp_(min=0.0).minimum(res - 1.0)
@@ -275,19 +288,15 @@ class VMTimeGrid(VMGrid):
     def _read_sliced(self, x: torch.Tensor) -> torch.Tensor | None:
         """A read that wants no gradient (a frame rendered at its time, a training step's first
         pass at its frames' times): the lines sliced at the points' times, then one compiled
-        pass that reads each point's slice (the same sums as the gathers'). None: points at
-        more than FUSED_TIMES times (the slices would outgrow the read)."""
+        pass that reads each point's slice (the same sums as the gathers'). None: no points, or
+        points at more than FUSED_TIMES times (the slices would outgrow the read)."""
+        at = point_times(x[:, 3], FUSED_TIMES)
+        if at is None:
+            return None
+        times, which = at
+        shift = None if which is None else which * self._line_rows()
         _, _, _, res, _, poff, loff, _ = self._constants(x.device)
-        t = x[:, 3]
-        if x.shape[0] == 0 or bool((t == t[0]).all()):
-            times, shift = t[:1], None
-        else:
-            times, which = torch.unique(t, return_inverse=True)
-            if len(times) > FUSED_TIMES:
-                return None
-            shift = which * self._line_rows()
-        lines = self.sliced(times) if len(times) else self.lines
-        return vm_read(x[:, :3], self.planes, lines, res, poff, loff, shift)
+        return vm_read(x[:, :3], self.planes, self.sliced(times), res, poff, loff, shift)
 
     def sliced(self, times: torch.Tensor) -> torch.Tensor:
         """The lines plus the change at each of `times` (U,) in [-1, 1], the change linear
