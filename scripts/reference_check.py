@@ -3,7 +3,9 @@ truth when it is another method's: poses and the depth of its points)? Two check
 of a run, keyframe by keyframe:
 
 - our SfM points' depth against the reference's points within 1.5 px (AbsRel, median-scaled
-  per frame): how far the two structures disagree before any field;
+  per frame), and our depth map's at the same points: how far the two structures disagree
+  before any field, and whether the field came closer; our depth map's error at every
+  reference point by the distance to our nearest SfM point (where the field is on its own);
 - the reference's points of a keyframe warped into the keyframe about GAP frames later with
   (a) the reference's depth and poses, (b) our depth map at the same pixels and our poses, (c)
   no warp; median NCC of 9x9 grey patches. The better supported geometry correlates higher.
@@ -45,7 +47,8 @@ def ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def by_stretch(rows: list[tuple], label: str) -> None:
     table = np.array(rows, dtype=np.float64)
-    print(f"{label}: all {' '.join(f'{v:.3f}' for v in np.median(table[:, 1:], 0))}")
+    means = " ".join(f"{v:.3f}" for v in np.mean(table[:, 1:], 0))
+    print(f"{label}: all {' '.join(f'{v:.3f}' for v in np.median(table[:, 1:], 0))} (mean {means})")
     for a, b in STRETCHES:
         sel = (table[:, 0] >= a) & (table[:, 0] < b)
         if sel.any():
@@ -74,7 +77,7 @@ def main() -> None:
         ref = np.zeros(size[::-1], np.float32) if ref is None else ref.astype(np.float32)
         return cv2.resize(ref, size, interpolation=cv2.INTER_NEAREST)
 
-    structure = []
+    structure, by_distance = [], []
     obs = poses.observations(ingest.index_by_name())
     for i in poses.registered if obs is not None else []:
         mine = obs.frame == i
@@ -83,13 +86,32 @@ def main() -> None:
         row, col = np.nonzero(ref)
         if not len(row):
             continue
+        if mine.sum() >= 3 and depth.has_depth(i):
+            d, g = depth.depth(i)[row, col], ref[row, col]
+            has = d > 0
+            if has.sum() >= 10:
+                err = np.abs(np.median(g[has] / d[has]) * d[has] - g[has]) / g[has]
+                far, _ = cKDTree(obs.uv[mine]).query(np.c_[col, row][has])
+                by_distance.append(np.c_[far, err])
         dist, nearest = cKDTree(np.c_[col, row]).query(obs.uv[mine])
         seen = dist < 1.5  # a reference point within 1.5 px of ours
-        if seen.sum() >= 5:
-            p, g = z[seen], ref[row[nearest[seen]], col[nearest[seen]]]
-            scale = np.median(g / p)
-            structure.append((source[i], float(np.mean(np.abs(scale * p - g) / g))))
-    by_stretch(structure, "our SfM points against the reference's, AbsRel")
+        if seen.sum() >= 5 and depth.has_depth(i):
+            at = row[nearest[seen]], col[nearest[seen]]
+            p, g, d = z[seen], ref[at], depth.depth(i)[at]
+            both = d > 0
+            if both.sum() < 5:
+                continue
+            p, g, d = p[both], g[both], d[both]
+            rel = [np.mean(np.abs(np.median(g / v) * v - g) / g) for v in (p, d)]
+            structure.append((source[i], *[float(r) for r in rel]))
+    by_stretch(structure, "at the reference points ours lie near, AbsRel: our SfM points / our depth")
+    if by_distance:
+        far, err = np.concatenate(by_distance).T
+        print("our depth at every reference point, AbsRel by the distance to our nearest point:")
+        for lo, hi in ((0, 4), (4, 8), (8, 16), (16, np.inf)):
+            sel = (far >= lo) & (far < hi)
+            if sel.any():
+                print(f"  {lo}-{hi} px: {err[sel].mean():.3f} ({sel.mean():.0%} of the points)")
 
     def grey(i: int) -> np.ndarray:
         return cv2.cvtColor(ingest.image(i), cv2.COLOR_RGB2GRAY).astype(np.float32)
