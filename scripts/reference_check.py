@@ -104,7 +104,8 @@ def main() -> None:
             p, g, d = p[both], g[both], d[both]
             rel = [np.mean(np.abs(np.median(g / v) * v - g) / g) for v in (p, d)]
             structure.append((source[i], *[float(r) for r in rel]))
-    by_stretch(structure, "at the reference points ours lie near, AbsRel: our SfM points / our depth")
+    label = "at the reference points ours lie near, AbsRel: our SfM points / our depth"
+    by_stretch(structure, label)
     if by_distance:
         far, err = np.concatenate(by_distance).T
         print("our depth at every reference point, AbsRel by the distance to our nearest point:")
