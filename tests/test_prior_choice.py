@@ -262,9 +262,17 @@ def test_a_still_camera_trains_longer_and_a_moving_one_does_not() -> None:
     longer = still_camera_settings(cfg, still, lines.append)
     assert longer.train.steps == round(4.0 * cfg.train.steps) == 6000
     assert any("6000 steps" in line and "still camera" in line for line in lines)
+    # its time budget grows with its steps (a machine of the reference speed trains them all)
+    assert longer.train.time_budget_s == 4.0 * cfg.train.time_budget_s
+    assert any(f"within {4.0 * cfg.train.time_budget_s:g} s" in line for line in lines)
+    unbounded = cfg.model_copy(
+        update={"train": cfg.train.model_copy(update={"time_budget_s": None})}
+    )
+    assert still_camera_settings(unbounded, still, lines.append).train.time_budget_s is None
     # the grid: unwarped over a still scene, over the view's frustum where tissue moves
     assert longer.field.warp is False
     pulled = SimpleNamespace(still=True, one_pair=False, motion=SimpleNamespace(scene="moving"))
     assert still_camera_settings(cfg, pulled, lines.append).field.warp == "frustum"
     cfg.train.still_steps = 1.0
-    assert still_camera_settings(cfg, still, lines.append).train.steps == cfg.train.steps
+    kept = still_camera_settings(cfg, still, lines.append).train
+    assert kept.steps == cfg.train.steps and kept.time_budget_s == cfg.train.time_budget_s

@@ -151,7 +151,8 @@ class TrainConfig(ConfigSection):
         description="A last resort against a slow or loaded machine (s): past it the schedules "
         "run on max(step / steps, time / budget) and training ends when either is done, so the "
         "result then depends on the machine; the log, summary and report say at which step "
-        "(null: all steps, always).",
+        "(null: all steps, always). It is the budget of `steps`: a still camera's multiple of "
+        "the steps (`still_steps`) multiplies it too.",
     )
     still_steps: float = Field(
         4.0,
