@@ -45,6 +45,11 @@ def ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return (a * b).sum(1) / np.sqrt((a * a).sum(1) * (b * b).sum(1) + 1e-9)
 
 
+def scaled_errors(ours: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Each point's relative error after one median scale for the frame (the depth scores')."""
+    return np.abs(np.median(reference / ours) * ours - reference) / reference
+
+
 def by_stretch(rows: list[tuple], label: str) -> None:
     table = np.array(rows, dtype=np.float64)
     means = " ".join(f"{v:.3f}" for v in np.mean(table[:, 1:], 0))
@@ -80,29 +85,25 @@ def main() -> None:
     structure, by_distance = [], []
     obs = poses.observations(ingest.index_by_name())
     for i in poses.registered if obs is not None else []:
-        mine = obs.frame == i
-        _, z = project(camera, obs.xyz[mine], poses.c2w[i])
         ref = reference(i)
         row, col = np.nonzero(ref)
-        if not len(row):
+        if not len(row) or not depth.has_depth(i):
             continue
-        if mine.sum() >= 3 and depth.has_depth(i):
-            d, g = depth.depth(i)[row, col], ref[row, col]
-            has = d > 0
-            if has.sum() >= 10:
-                err = np.abs(np.median(g[has] / d[has]) * d[has] - g[has]) / g[has]
-                far, _ = cKDTree(obs.uv[mine]).query(np.c_[col, row][has])
-                by_distance.append(np.c_[far, err])
+        ours = depth.depth(i)
+        mine = obs.frame == i
+        _, z = project(camera, obs.xyz[mine], poses.c2w[i])
+        d, g = ours[row, col], ref[row, col]
+        has = d > 0
+        if mine.sum() >= 3 and has.sum() >= 10:
+            far, _ = cKDTree(obs.uv[mine]).query(np.c_[col, row][has])
+            by_distance.append(np.c_[far, scaled_errors(d[has], g[has])])
         dist, nearest = cKDTree(np.c_[col, row]).query(obs.uv[mine])
         seen = dist < 1.5  # a reference point within 1.5 px of ours
-        if seen.sum() >= 5 and depth.has_depth(i):
-            at = row[nearest[seen]], col[nearest[seen]]
-            p, g, d = z[seen], ref[at], depth.depth(i)[at]
-            both = d > 0
-            if both.sum() < 5:
-                continue
-            p, g, d = p[both], g[both], d[both]
-            rel = [np.mean(np.abs(np.median(g / v) * v - g) / g) for v in (p, d)]
+        at = row[nearest[seen]], col[nearest[seen]]
+        p, g, d = z[seen], ref[at], ours[at]
+        both = d > 0
+        if both.sum() >= 5:
+            rel = [scaled_errors(v[both], g[both]).mean() for v in (p, d)]
             structure.append((source[i], *[float(r) for r in rel]))
     label = "at the reference points ours lie near, AbsRel: our SfM points / our depth"
     by_stretch(structure, label)
