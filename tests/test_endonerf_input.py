@@ -111,17 +111,19 @@ def test_depth_in_unnamed_units_supervises_as_a_relative_prior(tmp_path: Path) -
     assert view.truth_supervised(view.ground_truth()) == str((seq / "depth").resolve())
 
 
-def test_depth_in_millimetres_is_metric(tmp_path: Path) -> None:
+def test_depth_in_millimetres_is_metric_and_unknown_on_the_tool(tmp_path: Path) -> None:
     """endonerf.json saying mm (endopipe's export and synth): the maps are metric depth, taken
-    as the stereo rig's would be (stereo/, no baseline), the tool's included (a measurement)."""
+    as the stereo rig's would be (stereo/, no baseline), except on the tool: a tool's depth is
+    not the tissue's, which is what the field holds and the depth maps publish."""
     seq = endonerf_folder(tmp_path, tool_share=0.25)
     (seq / "endonerf.json").write_text(json.dumps({"depth_scale": 2.0, "units": "mm"}))
     view = ingest_of(seq, tmp_path)
     assert view.has_stereo and not view.has_depth_prior
     depth = view.stereo_depth(4)
     assert depth is not None and depth.shape == (H, W)
+    assert not depth[:, :16].any()  # the tool's pixels: unknown
     assert np.allclose(depth[depth > 0], 27.0)  # 54 counts / 2 per mm
-    assert (depth > 0).mean() > 0.9
+    assert (depth[:, 16:] > 0).mean() > 0.9
     info = view.file.stereo
     assert info is not None and info.baseline_mm is None and "given" in info.matcher
     assert view.summary.stereo is not None and "mm by endonerf.json" in view.summary.stereo

@@ -48,10 +48,10 @@ class Ingest(Stage):
 
     name = "ingest"
     needs = ()
-    # 10: a stereo pair alone; 9: a calibration checked against the frames' size; 8: a rig
-    # checked against its images (pairing, rows); 7: a data set's metric depth in stereo/;
-    # 6: the user's depth prior
-    version = 10
+    # 11: no stereo depth on a tool; 10: a stereo pair alone; 9: a calibration checked against
+    # the frames' size; 8: a rig checked against its images (pairing, rows); 7: a data set's
+    # metric depth in stereo/; 6: the user's depth prior
+    version = 11
     Config = IngestConfig
     Summary = IngestSummary
     View = IngestView
@@ -104,15 +104,15 @@ class Ingest(Stage):
                 name = f"{i:06d}.png"
                 cv2.imwrite(str(ctx.out / "frames" / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
                 usable = combine(fov, spec)
+                tool = tools.of(frame.source_index, rgb, fov, size)
+                if tool is not None:  # before the stereo: a tool's depth is not the tissue's
+                    usable[tool] = 0
+                    tool_fracs.append(float(tool.mean()))
+                    cv2.imwrite(str(ctx.out / "tools" / name), tool.astype(np.uint8) * 255)
                 depth = stereo.of(frame.source_index, rgb, usable) if stereo.active else None
                 relative = prior.of(frame.source_index, size, fov) if prior.active else None
                 prior_frames += relative is not None
                 stereo_shares.append(None if depth is None else stereo.share(depth, fov))
-                tool = tools.of(frame.source_index, rgb, fov, size)
-                if tool is not None:
-                    usable[tool] = 0
-                    tool_fracs.append(float(tool.mean()))
-                    cv2.imwrite(str(ctx.out / "tools" / name), tool.astype(np.uint8) * 255)
                 cv2.imwrite(str(ctx.out / "masks" / name), usable)
                 entries.append(
                     FrameEntry(

@@ -96,9 +96,9 @@ class FrameStereo:
 
     def of(self, source_index: int, left: np.ndarray, usable: np.ndarray) -> np.ndarray | None:
         """float32 z-depth (mm, 0 = unknown) of a kept frame (working size), matched only where
-        `usable` (the field of view without highlights); None when it has no right view. A
-        checked rig's right frame is the one its check paired, its rows shifted or the image turned
-        as found."""
+        `usable` (the field of view without highlights and tools); None when it has no right
+        view. A checked rig's right frame is the one its check paired, its rows shifted or the
+        image turned as found."""
         if self.given is not None:
             return self._given(source_index, left, usable)
         assert self.pairs is not None and self.camera is not None
