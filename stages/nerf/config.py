@@ -122,7 +122,13 @@ class SamplingConfig(ConfigSection):
         description="A ray that leaves the tube prior past either end of its centerline (where "
         "the wall is extrapolated straight, not seen) is not bounded there: far = the cap.",
     )
-    chunk: int = Field(8192, ge=256, description="Rays per chunk when rendering whole images.")
+    chunk: int = Field(
+        4096,
+        ge=256,
+        description="Rays per chunk when rendering whole images (the same pixels at any size; "
+        "on two CPU cores a held-out frame of C3VD renders in 1.0 s at 4096 against 1.45 s at "
+        "8192 and 1.2 s at 2048: a chunk's samples stay in cache).",
+    )
     proposal: bool | Literal["auto"] = Field(
         "auto",
         description="two_pass, training: the first pass reads a coarse copy of the density on "
