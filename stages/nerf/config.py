@@ -126,8 +126,8 @@ class SamplingConfig(ConfigSection):
         4096,
         ge=256,
         description="Rays per chunk when rendering whole images (the same pixels at any size; "
-        "on two CPU cores a held-out frame of C3VD renders in 1.0 s at 4096 against 1.45 s at "
-        "8192 and 1.2 s at 2048: a chunk's samples stay in cache).",
+        "on two CPU cores a held-out frame of C3VD renders in 1.10 s at 4096 against 1.54 s at "
+        "8192 and 1.36 s at 2048: scripts/bench_render_chunk.py).",
     )
     proposal: bool | Literal["auto"] = Field(
         "auto",
