@@ -233,6 +233,26 @@ def test_relative_ground_truth_shows_the_affine_protocol(case_copy: Path) -> Non
     assert "Spearman ρ vs the relative GT" in page
 
 
+def test_the_fields_depth_against_a_relative_truth_is_scored_up_to_scale_and_shift(
+    case_copy: Path,
+) -> None:
+    """The NeRF section's held-out depth against a relative truth (C3VD's panel): the
+    affine-invariant scores alone, no metric protocol the truth cannot support."""
+    manifest = folders_of(case_copy)["nerf"] / "manifest.json"
+    written = json.loads(manifest.read_text())
+    spearman, ssi = 0.9123, 0.1357
+    written["summary"]["depth"] = {
+        "affine_invariant": {"abs_rel": ssi, "spearman": spearman, "coverage": 0.98}
+    }
+    manifest.write_text(json.dumps(written))
+    page, info = render_report(case_copy, folders_of(case_copy), FAST)
+    assert info.sections["nerf"]
+    nerf = visible_text(section_html(page, "nerf"))
+    assert "Rendered depth on held-out frames" in nerf
+    assert fmt(spearman) in nerf and fmt(ssi) in nerf
+    assert "median" not in nerf.split("Rendered depth on held-out frames")[1].lower()
+
+
 def test_broken_artefacts_do_not_break_the_page(case_copy: Path) -> None:
     folders = folders_of(case_copy)
     (folders["mesh"] / "mesh.ply").write_bytes(b"ply\nformat nonsense\n")
@@ -422,6 +442,21 @@ def test_heldout_grid_has_column_titles_and_colour_bars() -> None:
     colour_bars = [ax for ax in fig.axes if ax.get_label() == "<colorbar>"]
     assert len(colour_bars) == 3  # two depth panels, then one (the second frame has no truth)
     assert any(t.get_text() == "no ground truth" for ax in fig.axes for t in ax.texts)
+
+
+def test_heldout_grid_titles_each_depth_in_its_own_units() -> None:
+    """SfM units for the rendered depth, the truth's own for the truth: C3VD's panel is an
+    affine proxy of depth, not depth in the poses' units; each then has its own colour scale."""
+    from endopipe.stages.nerf.evaluate import heldout_figure
+
+    img = np.full((32, 40, 3), 0.5, np.float32)
+    depth = np.linspace(1, 4, 32 * 40, dtype=np.float32).reshape(32, 40)
+    items = [(img, {"rgb": img, "depth": depth}, depth * 50 + 20)]
+    fig = heldout_figure(items, "colmap", False, "relative")
+    titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+    assert titles[2:] == ["rendered depth (colmap)", "ground-truth depth (relative)"]
+    ranges = [ax.images[0].get_clim() for ax in fig.axes if ax.images][2:]
+    assert ranges[0][1] < 5 < 50 < ranges[1][1], ranges
 
 
 def _lut(name: str) -> np.ndarray:

@@ -21,6 +21,7 @@ from endopipe.stages.metrics.depth import (
     affine_sequence_metrics,
     depth_sequence_metrics,
     image_metrics,
+    sequence_protocol,
 )
 from endopipe.stages.metrics.exposure import exposure_matched
 from endopipe.stages.nerf.shading_depth import shading_depth
@@ -57,13 +58,6 @@ def guesses(
         "radial": [radial] * len(ids),
         "brightness": [brightness_guess(ingest.image(i)) for i in ids],
     }
-
-
-def protocol(gt: GroundTruthSource | None):
-    """The sequence scoring for this truth: a relative one (an affine proxy of depth) supports
-    no metric protocol, only the affine-invariant one."""
-    relative = getattr(gt, "kind", "exact") == "relative"
-    return affine_sequence_metrics if relative else depth_sequence_metrics
 
 
 def inside_view(ingest: IngestView) -> np.ndarray:
@@ -116,7 +110,7 @@ def evaluate(
         inside = inside_view(ingest)
         ids = sorted(gt_depths)
         kind = getattr(gt, "kind", "exact")
-        sequence = protocol(gt)
+        sequence = sequence_protocol(gt)
         ours = [depths[i] for i in ids]
         truth = [gt_depths[i] for i in ids]
         masks, tool_share = scored_pixels(ingest, ids, inside)
@@ -194,7 +188,7 @@ def scores_by_support(
     ids = [i for i in sorted(gt_depths) if i in seen_again]
     if not ids:
         return {}
-    sequence = protocol(gt)
+    sequence = sequence_protocol(gt)
     block = "affine_invariant" if sequence is affine_sequence_metrics else "median_scaled"
     truth = [gt_depths[i] for i in ids]
     inside = inside_view(ingest)

@@ -263,3 +263,10 @@ def affine_sequence_metrics(
         for k in ("abs_rel", "spearman")
     } | {"coverage": _mean_coverage(per_frame)}
     return {"affine_invariant": mean, "frames": len(per_frame), "per_frame": per_frame}
+
+
+def sequence_protocol(gt: object | None):
+    """The sequence scoring a ground truth supports (its `kind`, stages/io/ground_truth.py): a
+    relative one (an affine proxy of depth) no metric protocol, only the affine-invariant one."""
+    relative = getattr(gt, "kind", "exact") == "relative"
+    return affine_sequence_metrics if relative else depth_sequence_metrics

@@ -12,7 +12,11 @@ import numpy as np
 from endopipe.stages.camera import lens_valid_mask
 from endopipe.stages.io.ground_truth import depth_of_frame
 from endopipe.stages.metrics.baselines import neighbour_guesses
-from endopipe.stages.metrics.depth import depth_sequence_metrics
+from endopipe.stages.metrics.depth import (
+    affine_sequence_metrics,
+    depth_sequence_metrics,
+    sequence_protocol,
+)
 from endopipe.stages.metrics.exposure import exposure_matched
 from endopipe.stages.nerf import losses
 from endopipe.stages.nerf.config import NerfConfig
@@ -46,7 +50,7 @@ def evaluate(
         m = usable(i)
         return img, float(((rgb - img) ** 2).mean(-1)[m].mean()) if m.any() else np.nan
 
-    preds, gts, fovs, mses, times, previews, pairs = [], [], [], [], [], [], []
+    preds, gts, fovs, scored_ids, mses, times, previews, pairs = [], [], [], [], [], [], [], []
     interpolated = []  # a fitted exposure's MSE before the fit
     (ctx.out / HELDOUT_RGB_DIR).mkdir(exist_ok=True)
     for i in held:
@@ -72,6 +76,7 @@ def evaluate(
             preds.append(out["depth"])
             gts.append(g)
             fovs.append(fov > 127 if fov is not None else None)
+            scored_ids.append(i)
     result: dict = {
         "heldout": held,
         "render_rgb_ms": round(1000 * float(np.median(times)), 1) if times else None,
@@ -97,13 +102,27 @@ def evaluate(
     )
     result["fit"] = verdict.word
     result["fit_said"] = verdict.said
+    poses = ctx.input(PosesView)
+    relative = sequence_protocol(gt) is affine_sequence_metrics
     if preds:
-        metrics = depth_sequence_metrics(preds, gts, fovs, unscaled=True)
-        result["depth"] = {k: metrics[k] for k in ("median_scaled", "sequence_scaled", "unscaled")}
+        # the truth's own protocols: an affine proxy of depth (C3VD's panel) only up to scale
+        # and shift; the depth as it is only where the poses are metric
+        if relative:
+            blocks = affine_sequence_metrics(preds, gts, fovs, scored_ids)
+        else:
+            blocks = depth_sequence_metrics(preds, gts, fovs, unscaled=poses.metric)
+        names = ("median_scaled", "sequence_scaled", "unscaled", "affine_invariant")
+        result["depth"] = {k: blocks[k] for k in names if k in blocks}
         result["depth_frames"] = len(preds)
     if previews:
-        poses = ctx.input(PosesView)
-        write_preview(ctx.out / "heldout.png", previews[:4], poses.file.units, poses.metric)
+        truth_units = "relative" if relative else getattr(gt, "units", "")
+        write_preview(
+            ctx.out / "heldout.png",
+            previews[:4],
+            poses.file.units,
+            poses.metric and not relative,
+            truth_units,
+        )
         write_pairs(ctx.out / HELDOUT_PAIRS_FILE, pairs)
     return NerfMetrics.model_validate(result)
 
@@ -163,23 +182,27 @@ def write_pairs(path: Path, pairs: list[tuple[int, np.ndarray, np.ndarray, float
 DEPTH_CMAP = "turbo"
 
 
-def write_preview(path: Path, items, units: str = "", metric: bool = True) -> None:
+def write_preview(
+    path: Path, items, units: str = "", metric: bool = True, truth_units: str = ""
+) -> None:
     """heldout.png: the held-out grid of `heldout_figure`."""
-    heldout_figure(items, units, metric).savefig(path, facecolor="white")
+    heldout_figure(items, units, metric, truth_units).savefig(path, facecolor="white")
 
 
-def heldout_figure(items, units: str = "", metric: bool = True):
+def heldout_figure(items, units: str = "", metric: bool = True, truth_units: str = ""):
     """Held-out frames, a row each: image | rendering | rendered depth | ground-truth depth,
-    with column titles and a colour bar per depth panel. With metric poses the rendered depth
-    shares the ground truth's colour scale; otherwise each has its own. `items`: (image,
-    rendering {rgb, depth}, ground-truth depth or None) per frame."""
+    with column titles and a colour bar per depth panel. With metric poses (and a metric truth)
+    the rendered depth shares the ground truth's colour scale; otherwise each has its own.
+    `units` are the rendered depth's (the poses'), `truth_units` the truth's ("relative": an
+    affine proxy of depth). `items`: (image, rendering {rgb, depth}, ground-truth depth or
+    None) per frame."""
     from matplotlib.figure import Figure
 
     h, w = items[0][1]["depth"].shape[:2]
     titles = ["held-out image", "NeRF rendering", f"rendered depth ({units or 'scene units'})"]
     has_gt = any(g is not None for _, _, g in items)
     if has_gt:
-        titles.append(f"ground-truth depth ({units or 'GT units'})")
+        titles.append(f"ground-truth depth ({truth_units or units or 'GT units'})")
     ncols, tile = len(titles), 2.6
     fig = Figure(figsize=(tile * ncols + 0.6, len(items) * tile * h / w + 0.6), dpi=100)
     for r, (img, out, gt) in enumerate(items):

@@ -51,13 +51,16 @@ class ColourRefit(BaseModel):
 
 
 class NerfDepthScores(BaseModel):
-    """The held-out frames' depth against the ground truth (metric protocols only)."""
+    """The held-out frames' depth against the ground truth, by the protocols the truth supports
+    (stages/metrics/depth.py `sequence_protocol`): the metric ones, `unscaled` only with metric
+    poses; an affine proxy of depth (C3VD's panel) the affine-invariant one alone."""
 
     model_config = ConfigDict(extra="forbid")
 
     median_scaled: DepthScores | None = None
     sequence_scaled: DepthScores | None = None
     unscaled: DepthScores | None = None
+    affine_invariant: DepthScores | None = None
 
 
 class NerfSummary(Summary):

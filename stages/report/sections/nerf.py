@@ -45,7 +45,9 @@ def section_nerf(data: CaseData, info: ReportInfo) -> str | None:
         psnr=psnr,
         show_psnr=psnr is not None,
         refit=refit_line(s.colour_refit) if s is not None else None,
-        depth=score_table(depth.median_scaled, depth.sequence_scaled, units=data.units)
+        depth=score_table(
+            depth.median_scaled, depth.sequence_scaled, depth.affine_invariant, units=data.units
+        )
         if depth is not None
         else None,
     )
