@@ -4,6 +4,7 @@ the figures (heldout.png, heldout_pairs.jpg, loss.png)."""
 
 from __future__ import annotations
 
+import textwrap
 import time
 from pathlib import Path
 
@@ -221,7 +222,7 @@ def heldout_figure(items, units: str = "", metric: bool = True, truth_units: str
             ax.set_xticks([])
             ax.set_yticks([])
             if r == 0:
-                ax.set_title(titles[c], fontsize=8)
+                ax.set_title(textwrap.fill(titles[c], 32), fontsize=8)  # a truth's long units
     fig.tight_layout()
     return fig
 
