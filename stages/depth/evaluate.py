@@ -4,8 +4,6 @@ the two guesses of `metrics.baselines` beside ours, and PSNR / SSIM of the held-
 
 from __future__ import annotations
 
-from functools import partial
-
 import cv2
 import numpy as np
 
@@ -19,7 +17,6 @@ from endopipe.stages.metrics.baselines import (
 )
 from endopipe.stages.metrics.depth import (
     affine_sequence_metrics,
-    depth_sequence_metrics,
     image_metrics,
     sequence_protocol,
 )
@@ -110,12 +107,10 @@ def evaluate(
         inside = inside_view(ingest)
         ids = sorted(gt_depths)
         kind = getattr(gt, "kind", "exact")
-        sequence = sequence_protocol(gt)
+        sequence = sequence_protocol(gt, metric)
         ours = [depths[i] for i in ids]
         truth = [gt_depths[i] for i in ids]
         masks, tool_share = scored_pixels(ingest, ids, inside)
-        if sequence is depth_sequence_metrics and metric:
-            sequence = partial(depth_sequence_metrics, unscaled=True)
         metrics.update(sequence(ours, truth, masks, ids))
         metrics["gt_kind"] = kind
         metrics["tool_share_left_out"] = tool_share

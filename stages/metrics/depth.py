@@ -6,6 +6,8 @@ rotation error between consecutive frames.
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 
 from endopipe.stages.camera import rotation_angle_deg, umeyama
@@ -265,8 +267,11 @@ def affine_sequence_metrics(
     return {"affine_invariant": mean, "frames": len(per_frame), "per_frame": per_frame}
 
 
-def sequence_protocol(gt: object | None):
+def sequence_protocol(gt: object | None, metric: bool = False):
     """The sequence scoring a ground truth supports (its `kind`, stages/io/ground_truth.py): a
-    relative one (an affine proxy of depth) no metric protocol, only the affine-invariant one."""
-    relative = getattr(gt, "kind", "exact") == "relative"
-    return affine_sequence_metrics if relative else depth_sequence_metrics
+    relative one (an affine proxy of depth) no metric protocol, only the affine-invariant one;
+    the others both scaled protocols, and the depth as it is when the poses are `metric`. Called
+    as `(preds, gts, masks, ids)`."""
+    if getattr(gt, "kind", "exact") == "relative":
+        return affine_sequence_metrics
+    return partial(depth_sequence_metrics, unscaled=True) if metric else depth_sequence_metrics

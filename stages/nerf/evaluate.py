@@ -13,11 +13,7 @@ import numpy as np
 from endopipe.stages.camera import lens_valid_mask
 from endopipe.stages.io.ground_truth import depth_of_frame
 from endopipe.stages.metrics.baselines import neighbour_guesses
-from endopipe.stages.metrics.depth import (
-    affine_sequence_metrics,
-    depth_sequence_metrics,
-    sequence_protocol,
-)
+from endopipe.stages.metrics.depth import affine_sequence_metrics, sequence_protocol
 from endopipe.stages.metrics.exposure import exposure_matched
 from endopipe.stages.nerf import losses
 from endopipe.stages.nerf.config import NerfConfig
@@ -104,14 +100,12 @@ def evaluate(
     result["fit"] = verdict.word
     result["fit_said"] = verdict.said
     poses = ctx.input(PosesView)
-    relative = sequence_protocol(gt) is affine_sequence_metrics
+    # the truth's own protocols: an affine proxy of depth (C3VD's panel) only up to scale and
+    # shift; the depth as it is only where the poses are metric
+    sequence = sequence_protocol(gt, poses.metric)
+    relative = sequence is affine_sequence_metrics
     if preds:
-        # the truth's own protocols: an affine proxy of depth (C3VD's panel) only up to scale
-        # and shift; the depth as it is only where the poses are metric
-        if relative:
-            blocks = affine_sequence_metrics(preds, gts, fovs, scored_ids)
-        else:
-            blocks = depth_sequence_metrics(preds, gts, fovs, unscaled=poses.metric)
+        blocks = sequence(preds, gts, fovs, scored_ids)
         names = ("median_scaled", "sequence_scaled", "unscaled", "affine_invariant")
         result["depth"] = {k: blocks[k] for k in names if k in blocks}
         result["depth_frames"] = len(preds)
