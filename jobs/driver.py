@@ -48,7 +48,13 @@ def run_cases(
     if not todo:
         return [rows[t.name] for t in tasks]
     executor, threads = make_executor(
-        kind, jobs=jobs, workdir=workdir, cluster=cluster, ray_address=ray_address, note=note
+        kind,
+        jobs=jobs,
+        workdir=workdir,
+        cluster=cluster,
+        ray_address=ray_address,
+        note=note,
+        tasks=len(todo),
     )
     todo = [t.model_copy(update={"threads": threads}) for t in todo]
     crashed: list[CaseTask] = []

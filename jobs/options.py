@@ -24,7 +24,8 @@ class Execution:
         default=None,
         metadata={
             "min": 1,
-            "help": "Jobs at once. local: worker processes (default 1); slurm: array parallelism "
+            "help": "Jobs at once. local: worker processes (default: one a core, one thread each, "
+            "one beside a GPU); slurm: array parallelism "
             "(default from the cluster config); ray: slots of a local cluster.",
         },
     )

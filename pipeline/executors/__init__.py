@@ -32,6 +32,7 @@ from endopipe.pipeline.executors.threads import (
     THREAD_VARS,
     available_cores,
     limit_threads,
+    local_jobs,
     thread_env,
     threads_per_job,
 )
@@ -51,6 +52,7 @@ __all__ = [
     "limit_threads",
     "load_cluster_config",
     "local_executor",
+    "local_jobs",
     "make_executor",
     "thread_env",
     "threads_per_job",
@@ -65,11 +67,17 @@ def make_executor(
     cluster: ClusterConfig,
     ray_address: str | None = None,
     note: Callable[[str], None] = print,
+    tasks: int = 1,
 ) -> tuple[Executor, int]:
-    """(executor, threads each job may use) for `kind`: local | slurm | ray."""
+    """(executor, threads each job may use) for `kind`: local | slurm | ray. `tasks`: how many
+    jobs there are to run (a local executor without `jobs` runs up to one a core)."""
     if kind == "local":
-        threads = threads_per_job(jobs or 1)
-        return local_executor(jobs or 1, threads), threads
+        if jobs is None:
+            jobs = local_jobs(tasks)
+            if jobs > 1:
+                note(f"{jobs} jobs at once, one thread each (--jobs N to choose)")
+        threads = threads_per_job(jobs)
+        return local_executor(jobs, threads), threads
     if kind == "slurm":
         ex = SubmititExecutor(cluster.slurm, workdir, jobs)
         return ex, ex.threads

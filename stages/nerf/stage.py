@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from endopipe.pipeline.errors import EndopipeError
+from endopipe.pipeline.executors.threads import auto_threads
 from endopipe.pipeline.stage import Stage, StageContext
 from endopipe.stages.camera import Camera, image_directions, lens_valid_mask, pixel_rays
 from endopipe.stages.centerline.view import CenterlineView
@@ -46,7 +47,7 @@ from endopipe.stages.nerf.shading_depth import only_shading_places_depth, shadin
 from endopipe.stages.nerf.sparse_depth import SparseDepth, sparse_depth_targets
 from endopipe.stages.nerf.stereo_depth import stereo_depth_targets
 from endopipe.stages.nerf.summary import NerfSummary
-from endopipe.stages.nerf.train import CHECKPOINT, Trainer, auto_threads
+from endopipe.stages.nerf.train import CHECKPOINT, Trainer
 from endopipe.stages.nerf.view import NerfView
 from endopipe.stages.poses.view import PosesView
 

@@ -12,7 +12,6 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-import psutil
 import torch
 from torch import Tensor
 
@@ -58,25 +57,6 @@ LOG_FIELDS = [
     "lr_grid",
     "elapsed_s",
 ]
-
-
-def auto_threads(window_s: float = 0.5) -> int:
-    """CPU threads for torch: the cores not busy with other processes, at least 1.
-
-    OpenMP threads that must share a core with other processes spin at every barrier: on a
-    loaded 2-core machine two threads ran a step ~10x slower than one. Busy is measured over
-    `window_s` now, less this process's own use: the load average would count the poses stage
-    that just ran in this very process as another job."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cores = os.cpu_count() or 1
-    me = psutil.Process()
-    me.cpu_percent(None)
-    psutil.cpu_percent(None)
-    time.sleep(window_s)
-    others = psutil.cpu_percent(None) / 100.0 * psutil.cpu_count() - me.cpu_percent(None) / 100.0
-    return int(min(cores, max(1, round(cores - max(others, 0.0)))))
 
 
 def adam(groups: list[dict]) -> torch.optim.Adam:
