@@ -33,6 +33,9 @@ class JoinedCameras:
     c2w: dict[int, np.ndarray]  # by source_index
     intrinsics: Camera
     metric: bool = False
+    #: The joined path lies in its first segment's frame, never the truth's: the evaluation fits
+    #: it onto the truth's cameras (sim3, or rigid when metric).
+    in_gt_frame: bool = False
 
     @property
     def registered(self) -> list[int]:

@@ -21,9 +21,13 @@ from endopipe.pipeline.errors import EndopipeError
 from endopipe.pipeline.executors import (
     ClusterConfig,
     load_cluster_config,
+    local_jobs,
     make_executor,
+    thread_env,
+    threads,
     threads_per_job,
 )
+from endopipe.pipeline.executors.threads import auto_threads
 from tests.conftest import textured_frames, write_video
 from tests.test_datasets import write_c3vd, write_hamlyn, write_simcol
 
@@ -238,11 +242,19 @@ def test_cluster_config_is_valid_and_checked(tmp_path: Path) -> None:
         load_cluster_config(bad)
 
 
-def test_threads_are_shared_between_jobs() -> None:
+def test_threads_are_shared_between_jobs(monkeypatch) -> None:
     cores = len(os.sched_getaffinity(0))
     assert threads_per_job(1) == cores
     assert threads_per_job(cores * 4) == 1
     assert threads_per_job(2) == max(1, cores // 2)
+    # Without --jobs: one job a core, never more jobs than tasks, one beside a GPU.
+    assert local_jobs(1) == 1
+    assert 1 <= local_jobs(cores * 4) <= cores
+    monkeypatch.setattr(threads, "_has_gpu", lambda: True)
+    assert local_jobs(cores * 4) == 1
+    # A stage picking its own threads stays under its job's share, even on an idle machine.
+    with thread_env(1):
+        assert auto_threads(window_s=0.05) == 1
 
 
 def test_no_cases_and_bad_executor_are_one_line(tmp_path: Path, capsys) -> None:

@@ -398,6 +398,46 @@ def test_a_short_clip_is_one_case_with_every_usable_frame(withdrawal: Path, tmp_
     assert kept["long"][0] < kept["short"][0] / 2
 
 
+def test_the_joined_path_is_fitted_onto_the_truth_to_score_the_mesh(tmp_path: Path) -> None:
+    """The recording's one mesh is scored through the joined cameras (in the first segment's
+    frame and units): placed on the truth by a similarity, a finer copy of the truth's wall
+    scores its tessellation's error (0.2% of the radius), not the frames' difference."""
+    import trimesh
+
+    from endopipe.recording.fuse import JoinedCameras
+    from endopipe.stages.camera import Camera
+    from endopipe.stages.mesh.config import MeshConfig
+    from endopipe.stages.mesh.evaluation import evaluate_against_gt
+    from endopipe.stages.surface.mesh import RawMesh
+
+    def tube(sections: int, edge: float) -> trimesh.Trimesh:  # a lumen along z, millimetres
+        wall = trimesh.creation.cylinder(radius=10.0, height=120.0, sections=sections)
+        return wall.apply_translation([0.0, 0.0, 60.0]).subdivide_to_size(max_edge=edge)
+
+    gt_path = tmp_path / "gt.ply"
+    tube(48, 3.0).export(gt_path)
+    wall = tube(96, 2.0)
+    up = np.array([0.0, 1.0, 0.0])
+    truth = {
+        i: look_at(np.array([1.0, 0.0, 10.0 + 5 * i]), np.array([1.0, 0.0, 90.0]), up)
+        for i in range(6)
+    }
+    s = 0.25  # the SfM's units: a quarter of a millimetre, shifted
+    ours = {i: c2w.copy() for i, c2w in truth.items()}
+    for c2w in ours.values():
+        c2w[:3, 3] = s * c2w[:3, 3] + np.array([3.0, -2.0, 1.0])
+    mesh = RawMesh(
+        s * np.asarray(wall.vertices) + np.array([3.0, -2.0, 1.0]), np.asarray(wall.faces)
+    )
+    cams = JoinedCameras(ours, Camera(width=64, height=48, fx=40.0, fy=40.0, cx=31.5, cy=23.5))
+    cfg = MeshConfig(eval_samples=20000)
+    metrics = evaluate_against_gt(mesh, cams, gt_path, truth, 60.0 * s, cfg, gt_radius=10.0)  # type: ignore[arg-type]
+    assert metrics["evaluated"] and metrics["aligned"] == "sim3"
+    assert abs(metrics["sim3_scale"] - 1 / s) < 1e-6
+    print(metrics["chamfer_pct_radius"])
+    assert 0.05 < metrics["chamfer_pct_radius"] < 0.5
+
+
 @pytest.mark.slow
 def test_a_withdrawal_through_windows_to_one_mesh_is_redrawn_by_the_light(
     withdrawal: Path, tmp_path: Path
