@@ -401,7 +401,7 @@ def test_a_short_clip_is_one_case_with_every_usable_frame(withdrawal: Path, tmp_
 def test_the_joined_path_is_fitted_onto_the_truth_to_score_the_mesh(tmp_path: Path) -> None:
     """The recording's one mesh is scored through the joined cameras (in the first segment's
     frame and units): placed on the truth by a similarity, a finer copy of the truth's wall
-    scores its tessellation's error (0.2% of the radius), not the frames' difference."""
+    scores its tessellation's error (0.1% of the radius), not the frames' difference."""
     import trimesh
 
     from endopipe.recording.fuse import JoinedCameras
